@@ -1,0 +1,1 @@
+//! The DEM engine (Hertz-Mindlin no-slip, rolling friction, triangle meshes).

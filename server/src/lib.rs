@@ -1,0 +1,1 @@
+//! The job server (axum + SQLite). Not built yet: see the job-server issue.
