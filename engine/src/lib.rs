@@ -1,1 +1,3 @@
 //! The DEM engine (Hertz-Mindlin no-slip, rolling friction, triangle meshes).
+
+pub mod math;
