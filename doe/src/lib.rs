@@ -1,1 +1,2 @@
 //! Design of experiments and response-surface statistics.
+pub mod design;
