@@ -1,3 +1,4 @@
 //! The DEM engine (Hertz-Mindlin no-slip, rolling friction, triangle meshes).
 
 pub mod math;
+pub mod mesh;

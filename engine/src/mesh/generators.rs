@@ -1,0 +1,1 @@
+//! Mesh generators for the test geometries (plane, open box, cylinder, funnel, auger).
