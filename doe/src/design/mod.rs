@@ -8,6 +8,32 @@
 //!
 //! Nothing here performs I/O, panics on bad input, or depends on the regression half of the
 //! crate: inputs that come from a fit (the steepest-ascent coefficients) are plain `f64`s.
+//!
+//! ```
+//! use repose_doe::design::{box_behnken, replicate, Factor, PathClamp, PathDirection, SteepestPath};
+//!
+//! // The paper's Box–Behnken design: 3 factors, 12 edge runs + 5 centre points.
+//! let factors = vec![
+//!     Factor::new("N2", 0.44, 0.68)?,
+//!     Factor::new("N3", 0.01, 0.40)?,
+//!     Factor::new("N5", 0.30, 0.70)?,
+//! ];
+//! let design = box_behnken(&["N2", "N3", "N5"], 5)?.randomized(2026);
+//! let natural = design.natural_runs(&factors)?;
+//! assert_eq!(natural.len(), 17);
+//! let runs = replicate(&design, 2, 7)?; // 34 runs, each with its own DEM seed
+//! assert_eq!(runs.len(), 34);
+//!
+//! // The paper's steepest-ascent path (Eqs. 13-15, Table 5).
+//! let path = SteepestPath::spec(vec![2.30, 7.36, 1.87], factors, PathDirection::Ascent)
+//!     .start_at(vec![0.44, 0.01, 0.30])
+//!     .steps(4)
+//!     .round_steps_to(2)
+//!     .clamp(PathClamp::FactorRange)
+//!     .build()?;
+//! assert!((path.points[4][1] - 0.40).abs() < 1e-12); // N3 held at its upper bound
+//! # Ok::<(), repose_doe::design::DesignError>(())
+//! ```
 
 mod box_behnken;
 mod ccd;
