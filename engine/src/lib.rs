@@ -2,3 +2,13 @@
 
 pub mod math;
 pub mod mesh;
+pub mod kinematics;
+pub mod distribution;
+pub mod factory;
+pub mod bench;
+pub mod contact;
+pub mod integrate;
+pub mod material;
+pub mod neighbor;
+pub mod particles;
+pub mod world;
