@@ -258,7 +258,7 @@ pub enum OptimumError {
         found: usize,
     },
     /// A factor range is degenerate.
-    #[error("factor {factor}: low ({low}) and high ({high}) must be finite and different")]
+    #[error("factor {factor:?}: needs a non-empty name and finite low ({low}) < high ({high})")]
     InvalidFactorRange {
         /// Factor name.
         factor: String,

@@ -391,56 +391,6 @@ fn parse_term(raw: &str, factors: &[String]) -> Result<Term, FitError> {
     Ok(Term::new(exps, factors))
 }
 
-/// Natural range of a factor: the natural values at coded -1 and +1.
-///
-/// Coding is `coded = (natural - centre) / half_range` with
-/// `centre = (low + high) / 2` and `half_range = (high - low) / 2`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FactorRange {
-    /// Factor name.
-    pub name: String,
-    /// Natural value at coded -1.
-    pub low: f64,
-    /// Natural value at coded +1.
-    pub high: f64,
-}
-
-impl FactorRange {
-    /// Range from natural values at coded -1 and +1.
-    pub fn new(name: impl Into<String>, low: f64, high: f64) -> Self {
-        Self {
-            name: name.into(),
-            low,
-            high,
-        }
-    }
-
-    /// Range from the centre (coded 0) and the half-range (one coded unit).
-    pub fn from_center(name: impl Into<String>, center: f64, half_range: f64) -> Self {
-        Self::new(name, center - half_range, center + half_range)
-    }
-
-    /// Natural value at coded 0.
-    pub fn center(&self) -> f64 {
-        0.5 * (self.low + self.high)
-    }
-
-    /// Natural distance of one coded unit.
-    pub fn half_range(&self) -> f64 {
-        0.5 * (self.high - self.low)
-    }
-
-    /// Natural → coded.
-    pub fn to_coded(&self, natural: f64) -> f64 {
-        (natural - self.center()) / self.half_range()
-    }
-
-    /// Coded → natural.
-    pub fn to_natural(&self, coded: f64) -> f64 {
-        self.center() + coded * self.half_range()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -490,12 +440,5 @@ mod tests {
         assert!(!m.is_removable(0));
         assert!(!m.is_removable(1));
         assert!(m.is_removable(3));
-    }
-
-    #[test]
-    fn coding_round_trip() {
-        let r = FactorRange::from_center("N2", 0.48, 0.04);
-        assert!((r.to_coded(0.442) + 0.95).abs() < 1e-12);
-        assert!((r.to_natural(-0.95) - 0.442).abs() < 1e-12);
     }
 }

@@ -20,16 +20,22 @@
 //! measured 34.85°). We then say so (`level_set = true`), report how many
 //! starts reached the top desirability and how far apart those solutions
 //! are, and order tied solutions by the documented tie-break: closest to the
-//! design centre first (the least extrapolating choice).
+//! design centre first (the least extrapolating choice). Because the starts
+//! only sample the tied set, the few most central tied points are then
+//! refined (when the goals are fully met, D ≈ 1) by minimising `|x|²`
+//! subject to keeping the desirability tied
+//! (exact-penalty Nelder–Mead), so the first solution is the tied point
+//! nearest the design centre, independent of the seed up to the optimiser's
+//! tolerance.
 
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::design::Factor;
 use crate::error::OptimumError;
 use crate::fit::Fit;
-use crate::model::FactorRange;
 
 /// Goal for one response. `lower`/`upper` are the limits outside which the
 /// response is unacceptable (desirability 0) or fully satisfactory.
@@ -248,7 +254,7 @@ pub struct OptimumOptions {
     /// Seed of the Latin-hypercube starts; the search is deterministic for a seed.
     pub seed: u64,
     /// Natural ranges of the factors, to report solutions in natural units.
-    pub factor_ranges: Option<Vec<FactorRange>>,
+    pub factor_ranges: Option<Vec<Factor>>,
     /// Maximum number of solutions returned (default 10).
     pub max_solutions: usize,
     /// Solutions closer than this (Euclidean, coded units) are the same
@@ -320,7 +326,8 @@ pub struct OptimumResult {
     pub starts: usize,
     /// Number of starts that ended tied with the best desirability.
     pub starts_at_best: usize,
-    /// Number of distinct points among those.
+    /// Number of distinct tied points found (those starts plus the
+    /// centre-ward refinements of the tie-break).
     pub distinct_at_best: usize,
     /// Largest distance (coded units) between two tied-best solutions.
     pub spread: f64,
@@ -390,7 +397,7 @@ fn validate(objectives: &[Objective<'_>], options: &OptimumOptions) -> Result<us
             });
         }
         for f in r {
-            if !(f.low.is_finite() && f.high.is_finite() && f.low != f.high) {
+            if f.validate().is_err() {
                 return Err(OptimumError::InvalidFactorRange {
                     factor: f.name.clone(),
                     low: f.low,
@@ -535,14 +542,35 @@ pub fn optimize(
     };
 
     // Tied with the best (only meaningful when something is feasible).
-    let mut tied: Vec<&(Vec<f64>, f64, f64)> = if best > 0.0 {
+    let mut tied: Vec<(Vec<f64>, f64, f64)> = if best > 0.0 {
         ends.iter()
             .filter(|e| e.1 >= best - options.tie_tol)
+            .cloned()
             .collect()
     } else {
         Vec::new()
     };
+    let starts_at_best = tied.len();
     tied.sort_by(|a, b| centre_dist(&a.0).total_cmp(&centre_dist(&b.0)));
+    // Tie-break refinement: when several points tie, move the most central
+    // ones towards the centre *along* the tied set, so that the first
+    // solution really is (close to) the tied point nearest the centre and
+    // not just the most central end point of a random start.
+    // Only when the goals are fully met (D ≈ 1): below 1 a tie band of
+    // `tie_tol` around a unique optimum must not be traded for centrality.
+    if tied.len() >= 2 && best >= 1.0 - options.tie_tol {
+        let refined: Vec<(Vec<f64>, f64, f64)> = tied
+            .iter()
+            .take(REFINE_STARTS)
+            .filter_map(|e| {
+                let x = refine_towards_centre(objectives, region, &e.0, best, options);
+                let (d, viol, _) = overall(objectives, &x);
+                (d >= best - options.tie_tol).then_some((x, d, viol))
+            })
+            .collect();
+        tied.extend(refined);
+        tied.sort_by(|a, b| centre_dist(&a.0).total_cmp(&centre_dist(&b.0)));
+    }
     let mut chosen: Vec<Vec<f64>> = Vec::new();
     for e in &tied {
         if chosen.iter().all(|c| dist(c, &e.0) > options.distinct_tol) {
@@ -587,7 +615,12 @@ pub fn optimize(
 
     let ranges = options.factor_ranges.as_ref();
     let to_natural = |x: &[f64]| -> Option<Vec<f64>> {
-        ranges.map(|r| r.iter().zip(x).map(|(f, v)| f.to_natural(*v)).collect())
+        ranges.map(|r| {
+            r.iter()
+                .zip(x)
+                .map(|(f, v)| f.to_natural(*v).unwrap_or(f64::NAN))
+                .collect()
+        })
     };
     let solutions: Vec<Solution> = chosen
         .into_iter()
@@ -629,23 +662,21 @@ pub fn optimize(
         )
     } else if level_set {
         format!(
-            "level set: {} of {starts_n} starts reached desirability {:.4} at {distinct_at_best} \
-             distinct points up to {spread:.3} coded units apart, so the optimum is not unique; \
-             tied solutions are ordered by distance from the design centre (closest first)",
-            tied.len(),
-            best
+            "level set: {starts_at_best} of {starts_n} starts reached desirability {best:.4}, \
+             giving {distinct_at_best} distinct points up to {spread:.3} coded units apart, so \
+             the optimum is not unique; tied solutions are ordered by distance from the design \
+             centre (closest first)"
         )
     } else if distinct_at_best >= 2 {
         format!(
-            "{} of {starts_n} starts reached the best desirability {best:.4} at \
+            "{starts_at_best} of {starts_n} starts reached the best desirability {best:.4} at \
              {distinct_at_best} distinct points; tied solutions are ordered by distance from \
-             the design centre (closest first)",
-            tied.len()
+             the design centre (closest first)"
         )
     } else {
         format!(
-            "{} of {starts_n} starts reached the best desirability {best:.4} at a single point",
-            tied.len()
+            "{starts_at_best} of {starts_n} starts reached the best desirability {best:.4} at a \
+             single point"
         )
     };
     Ok(OptimumResult {
@@ -654,7 +685,7 @@ pub fn optimize(
         best_desirability: best,
         level_set,
         starts: starts_n,
-        starts_at_best: tied.len(),
+        starts_at_best,
         distinct_at_best,
         spread,
         coded_min,
@@ -663,6 +694,43 @@ pub fn optimize(
         natural_max,
         note,
     })
+}
+
+/// How many of the most central tied solutions are refined towards the centre.
+const REFINE_STARTS: usize = 5;
+
+/// Minimise `|x|²` over the region subject to `D(x) >= best - tie_tol/100`,
+/// by Nelder–Mead on an exact (non-smooth) penalty, restarted with shrinking
+/// steps. Returns the projected end point (the caller re-checks D).
+fn refine_towards_centre(
+    objectives: &[Objective<'_>],
+    region: Region,
+    from: &[f64],
+    best: f64,
+    options: &OptimumOptions,
+) -> Vec<f64> {
+    let threshold = best - 0.01 * options.tie_tol;
+    let penalised = |z: &[f64]| -> f64 {
+        let mut x = z.to_vec();
+        region.project(&mut x);
+        let out: f64 = z.iter().zip(&x).map(|(a, b)| (a - b) * (a - b)).sum();
+        let (d, _, _) = overall(objectives, &x);
+        let norm2: f64 = x.iter().map(|v| v * v).sum();
+        norm2 + 1e4 * (threshold - d).max(0.0) + out
+    };
+    let mut x = from.to_vec();
+    let mut fx = penalised(&x);
+    let mut step = 0.1 * region.extent();
+    for _ in 0..6 {
+        let (nx, nf) = nelder_mead(&penalised, &x, step, options.max_evals);
+        if nf < fx {
+            x = nx;
+            fx = nf;
+        }
+        step *= 0.3;
+    }
+    region.project(&mut x);
+    x
 }
 
 /// `n` Latin-hypercube points in `[-extent, extent]^k`.
