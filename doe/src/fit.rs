@@ -20,9 +20,10 @@ use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use crate::anova::{build_anova, AnovaRow, AnovaSource, FitStats};
+use crate::design::Design;
 use crate::diagnostics::{run_diagnostics, RunDiagnostics};
 use crate::error::{Alias, FitError};
-use crate::model::Model;
+use crate::model::{Model, ModelKind};
 use crate::stats::{t_quantile, t_two_sided_p};
 
 /// Relative residual norm below which a column counts as a linear
@@ -268,6 +269,21 @@ pub fn fit_with_options<R: AsRef<[f64]>>(
             }
         }
     }
+}
+
+/// Fit a model of family `kind` in all factors of `design` (coded runs, in
+/// the design's row order) to `response`.
+///
+/// Convenience for callers that already hold a [`Design`]: the factor names
+/// and run layout come from the design, so they cannot disagree with the model.
+pub fn fit_design(
+    design: &Design,
+    kind: ModelKind,
+    response: &[f64],
+    options: &FitOptions,
+) -> Result<Fit, FitError> {
+    let model = Model::new(design.factor_names(), kind)?;
+    fit_with_options(&model, design.coded_runs(), response, options)
 }
 
 /// Checks lengths and finiteness; returns the rows as owned vectors.

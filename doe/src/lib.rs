@@ -13,7 +13,7 @@ mod stats;
 pub use anova::{AnovaRow, AnovaSource, FitStats};
 pub use diagnostics::RunDiagnostics;
 pub use error::{Alias, FitError, OptimumError};
-pub use fit::{fit, fit_with_options, Coefficient, EliminationStep, Fit, FitOptions};
+pub use fit::{fit, fit_design, fit_with_options, Coefficient, EliminationStep, Fit, FitOptions};
 pub use model::{Model, ModelKind, Term};
 pub use optimum::{
     optimize, Goal, Objective, OptimumOptions, OptimumResult, PredictedResponse, Region, Solution,

@@ -8,8 +8,11 @@
 //! (a tiny 1e-9 slack is added only so that exact decimal ties such as
 //! 1.155 → "1.16" are not lost to binary representation).
 
-use repose_doe::design::Factor;
-use repose_doe::{fit, optimize, AnovaRow, Fit, Goal, Model, Objective, OptimumOptions, Region};
+use repose_doe::design::{Design, Factor};
+use repose_doe::{
+    fit, fit_design, optimize, AnovaRow, Fit, FitOptions, Goal, Model, ModelKind, Objective,
+    OptimumOptions, Region,
+};
 
 /// Tiny CSV reader: header names and numeric rows.
 fn read_csv(path: &str) -> (Vec<String>, Vec<Vec<f64>>) {
@@ -92,6 +95,15 @@ fn bbd_fit() -> Fit {
     let factors = ["N2", "N3", "N5"];
     let (x, y) = columns(BBD, &factors, "angle_deg");
     fit(&Model::quadratic(&factors).unwrap(), &x, &y).unwrap()
+}
+
+#[test]
+fn fit_design_is_the_same_fit() {
+    let factors = ["N2", "N3", "N5"];
+    let (x, y) = columns(BBD, &factors, "angle_deg");
+    let design = Design::custom(&factors, x).unwrap();
+    let f = fit_design(&design, ModelKind::Quadratic, &y, &FitOptions::default()).unwrap();
+    assert_eq!(f.coefficient_map(), bbd_fit().coefficient_map());
 }
 
 #[test]
