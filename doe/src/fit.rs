@@ -17,7 +17,7 @@
 use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::anova::{build_anova, AnovaRow, AnovaSource, FitStats};
 use crate::design::Design;
@@ -30,8 +30,10 @@ use crate::stats::{t_quantile, t_two_sided_p};
 /// combination of the previous ones (i.e. VIF above ~1e16).
 const ALIAS_TOL: f64 = 1e-8;
 
-/// Options of [`fit_with_options`].
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Options of [`fit_with_options`]. Deserialisable (missing fields take the
+/// defaults) so a command line or config file can carry them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct FitOptions {
     /// Name of the response, used in error messages and carried in the result.
     pub response_name: String,
@@ -214,6 +216,23 @@ impl Fit {
 ///
 /// `runs[i]` holds the coded factor settings of run `i` (one value per factor
 /// of the model, in the model's factor order) and `response[i]` its response.
+///
+/// ```
+/// use repose_doe::{fit, Model};
+/// let runs = vec![
+///     vec![-1.0, -1.0],
+///     vec![1.0, -1.0],
+///     vec![-1.0, 1.0],
+///     vec![1.0, 1.0],
+///     vec![0.0, 0.0],
+/// ];
+/// let y = [10.0, 14.0, 11.0, 16.0, 12.6];
+/// let f = fit(&Model::linear(&["A", "B"])?, &runs, &y)?;
+/// assert!((f.coefficient_map()["A"] - 2.25).abs() < 1e-12);
+/// let model_row = f.anova_row("Model").unwrap();
+/// assert!(model_row.p.unwrap() < 0.05);
+/// # Ok::<(), repose_doe::FitError>(())
+/// ```
 pub fn fit<R: AsRef<[f64]>>(model: &Model, runs: &[R], response: &[f64]) -> Result<Fit, FitError> {
     fit_with_options(model, runs, response, &FitOptions::default())
 }

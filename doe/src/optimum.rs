@@ -244,8 +244,10 @@ impl Region {
     }
 }
 
-/// Options of [`optimize`].
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Options of [`optimize`]. Deserialisable (missing fields take the
+/// defaults) so a command line or config file can carry them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct OptimumOptions {
     /// Search region (default the cube).
     pub region: Region,

@@ -162,3 +162,17 @@ fn unreachable_goal_reports_zero_desirability() {
         "{x:?}"
     );
 }
+
+#[test]
+fn options_deserialise_with_defaults() {
+    let o: OptimumOptions =
+        serde_json::from_str(r#"{"region": {"shape": "sphere", "radius": 1.414}, "seed": 3}"#)
+            .unwrap();
+    assert_eq!(o.seed, 3);
+    assert_eq!(o.starts, OptimumOptions::default().starts);
+    let g: Goal = serde_json::from_str(
+        r#"{"goal": "target", "target": 34.85, "lower": 24.24, "upper": 46.58}"#,
+    )
+    .unwrap();
+    assert!(matches!(g, Goal::Target { .. }));
+}
