@@ -1,7 +1,14 @@
 //! The DEM engine (Hertz-Mindlin no-slip, rolling friction, triangle meshes).
 
-pub mod math;
-pub mod mesh;
-pub mod kinematics;
+pub mod bench;
+pub mod contact;
 pub mod distribution;
 pub mod factory;
+pub mod integrate;
+pub mod kinematics;
+pub mod material;
+pub mod math;
+pub mod mesh;
+pub mod neighbor;
+pub mod particles;
+pub mod world;

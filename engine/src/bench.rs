@@ -1,0 +1,163 @@
+//! Throughput benchmark: a settled, polydisperse bed of spheres on a floor, periodic in x and
+//! y, stepped with Hertz-Mindlin + tangential history + CDT rolling friction.
+//!
+//! No printing: the caller (CLI) reports the returned figures.
+
+use std::time::Instant;
+
+use rand::Rng;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::kinematics::Motion;
+use crate::material::{Interaction, MaterialSet};
+use crate::math::{Pose, Vec3};
+use crate::mesh::TriMesh;
+use crate::neighbor::Domain;
+use crate::particles::ParticleSpec;
+use crate::world::{Geometry, World, WorldConfig, WorldError};
+
+/// What to measure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchConfig {
+    pub particles: usize,
+    /// Threads of the local rayon pool the benchmark runs in.
+    pub threads: usize,
+    /// Timed steps (after settling).
+    pub steps: u64,
+    pub seed: u64,
+}
+
+/// Measured figures.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchResult {
+    pub particles: usize,
+    pub threads: usize,
+    pub steps: u64,
+    /// Wall-clock time of the timed steps, s.
+    pub seconds: f64,
+    /// particles × steps / seconds.
+    pub particle_steps_per_second: f64,
+    /// Particle arrays + pair list + histories, divided by the particle count.
+    pub bytes_per_particle: f64,
+    /// Particle-particle contacts per particle (coordination number, each contact counted for
+    /// both particles) at the end of the run.
+    pub contacts_per_particle: f64,
+    /// Neighbour-list pairs per particle (half list).
+    pub pairs_per_particle: f64,
+    /// Neighbour-list rebuilds during the timed steps.
+    pub rebuilds: u64,
+}
+
+/// Mean particle radius of the bed, m (sand-grain scale; the radii vary ±10 %).
+pub const BED_RADIUS: f64 = 1.0e-3;
+
+/// Build a bed of `particles` spheres that has settled under gravity on a floor.
+///
+/// The spheres start on a jittered cubic lattice slightly wider than their diameter and are
+/// dropped onto a floor; with low restitution the lattice collapses into a random packing
+/// within a few thousand steps (≈ 4-6 contacts per particle).
+pub fn settled_bed(particles: usize, seed: u64) -> Result<World, WorldError> {
+    let soil_soil = Interaction {
+        restitution: 0.3,
+        static_friction: 0.5,
+        rolling_friction: 0.1,
+    };
+    let soil_steel = Interaction {
+        restitution: 0.3,
+        static_friction: 0.5,
+        rolling_friction: 0.1,
+    };
+    let materials = MaterialSet::paper(soil_soil, soil_steel).build()?;
+    let soil = materials.id("soil").expect("paper material set has soil");
+    let steel = materials.id("steel").expect("paper material set has steel");
+    let spacing = 2.2 * BED_RADIUS * 1.1;
+    let side = ((2.0 * particles as f64).cbrt().ceil() as usize).max(4);
+    let layers = particles.div_ceil(side * side);
+    let width = side as f64 * spacing;
+    let height = (layers as f64 + 2.0) * spacing;
+    let domain = Domain {
+        min: Vec3::new(0.0, 0.0, -0.5 * spacing),
+        max: Vec3::new(width, width, height + spacing),
+        periodic_x: true,
+        periodic_y: true,
+    };
+    let dt = materials.rayleigh_time_step(soil, 0.9 * BED_RADIUS, 0.2);
+    let mut config = WorldConfig::new(dt, domain);
+    config.seed = seed;
+    let mut world = World::new(materials, config)?;
+    let margin = 4.0 * spacing;
+    let floor = TriMesh::new(
+        vec![
+            Vec3::new(-margin, -margin, 0.0),
+            Vec3::new(width + margin, -margin, 0.0),
+            Vec3::new(width + margin, width + margin, 0.0),
+            Vec3::new(-margin, width + margin, 0.0),
+        ],
+        vec![[0, 1, 2], [0, 2, 3]],
+    )
+    .expect("floor mesh is valid");
+    world.add_geometry(Geometry {
+        name: "floor".into(),
+        mesh: floor,
+        motion: Motion::stationary(Pose::identity()),
+        material: steel,
+    })?;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut placed = 0;
+    'fill: for z in 0..layers {
+        for y in 0..side {
+            for x in 0..side {
+                if placed == particles {
+                    break 'fill;
+                }
+                let jitter = Vec3::new(
+                    rng.gen_range(-0.05..0.05),
+                    rng.gen_range(-0.05..0.05),
+                    rng.gen_range(-0.05..0.05),
+                ) * spacing;
+                let centre = Vec3::new(
+                    (x as f64 + 0.5) * spacing,
+                    (y as f64 + 0.5) * spacing,
+                    (z as f64 + 0.5) * spacing + BED_RADIUS,
+                ) + jitter;
+                let radius = BED_RADIUS * rng.gen_range(0.9..1.1);
+                world.add_particle(ParticleSpec::at_rest(centre, radius, soil))?;
+                placed += 1;
+            }
+        }
+    }
+    // Fall time of the top layer plus settling: sqrt(2 h / g) and as much again.
+    let fall = (2.0 * height / 9.81).sqrt();
+    world.run_until(2.0 * fall);
+    Ok(world)
+}
+
+/// Build a settled bed, then time `steps` steps in a local pool of `threads` threads.
+pub fn run_benchmark(config: &BenchConfig) -> Result<BenchResult, WorldError> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(config.threads.max(1))
+        .build()
+        .expect("building a rayon thread pool");
+    pool.install(|| {
+        let mut world = settled_bed(config.particles, config.seed)?;
+        // Warm up (caches, allocations) outside the timed region.
+        world.run(10);
+        let rebuilds_before = world.rebuild_count();
+        let start = Instant::now();
+        world.run(config.steps);
+        let seconds = start.elapsed().as_secs_f64();
+        let n = world.particles().len().max(1) as f64;
+        Ok(BenchResult {
+            particles: world.particles().len(),
+            threads: config.threads,
+            steps: config.steps,
+            seconds,
+            particle_steps_per_second: n * config.steps as f64 / seconds,
+            bytes_per_particle: world.memory_bytes() as f64 / n,
+            contacts_per_particle: 2.0 * world.contact_count() as f64 / n,
+            pairs_per_particle: world.pair_count() as f64 / n,
+            rebuilds: world.rebuild_count() - rebuilds_before,
+        })
+    })
+}

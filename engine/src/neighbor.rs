@@ -1,0 +1,403 @@
+//! Neighbour search: linked cells → a Verlet half pair list with a skin.
+//!
+//! The list holds every pair (i, j), i < j, whose surfaces are closer than `skin`. It stays
+//! valid until some particle has moved more than skin/2 since the build (then two particles
+//! can have closed the gap by at most `skin`). Pairs are grouped by their lower index `i`
+//! (CSR: `first_pair[i]..first_pair[i+1]`), so the contact loop can run over particles, each
+//! owning its pairs, with no write conflicts. Each pair carries its contact history; at a
+//! rebuild the histories are carried over by matching the pair's particles through their index
+//! at the previous build.
+
+use rayon::prelude::*;
+
+use crate::math::Vec3;
+use crate::particles::{Particles, NEW_PARTICLE};
+
+/// Particles per parallel work item. Fixed (not derived from the thread count) so that work
+/// partitioning never changes results.
+pub(crate) const CHUNK: usize = 512;
+
+/// The simulation box. Particles leaving it through a non-periodic face are removed.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Domain {
+    pub min: Vec3,
+    pub max: Vec3,
+    /// Periodic in x and in y (z, the gravity direction, is never periodic).
+    pub periodic_x: bool,
+    pub periodic_y: bool,
+}
+
+impl Domain {
+    /// A closed (non-periodic) box.
+    pub fn closed(min: Vec3, max: Vec3) -> Domain {
+        Domain {
+            min,
+            max,
+            periodic_x: false,
+            periodic_y: false,
+        }
+    }
+
+    /// The shortest periodic image of a separation vector.
+    #[inline]
+    pub(crate) fn minimum_image(&self, mut d: Vec3) -> Vec3 {
+        if self.periodic_x {
+            let l = self.max.x - self.min.x;
+            d.x -= l * (d.x / l).round();
+        }
+        if self.periodic_y {
+            let l = self.max.y - self.min.y;
+            d.y -= l * (d.y / l).round();
+        }
+        d
+    }
+
+    /// Map a position back into the box across periodic faces.
+    #[inline]
+    pub(crate) fn wrap(&self, mut p: Vec3) -> Vec3 {
+        if self.periodic_x {
+            let l = self.max.x - self.min.x;
+            p.x -= l * ((p.x - self.min.x) / l).floor();
+        }
+        if self.periodic_y {
+            let l = self.max.y - self.min.y;
+            p.y -= l * ((p.y - self.min.y) / l).floor();
+        }
+        p
+    }
+
+    /// True if `p` is outside the box through a non-periodic face.
+    #[inline]
+    pub(crate) fn is_outside(&self, p: Vec3) -> bool {
+        (!self.periodic_x && (p.x < self.min.x || p.x > self.max.x))
+            || (!self.periodic_y && (p.y < self.min.y || p.y > self.max.y))
+            || p.z < self.min.z
+            || p.z > self.max.z
+            || !p.iter().all(|c| c.is_finite())
+    }
+}
+
+/// What particle j receives from a pair (i, j) whose force was computed by particle i.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct PartnerShare {
+    pub force: Vec3,
+    pub torque: Vec3,
+    /// CDT rolling moment magnitude μr Fn Rj (applied against j's own ω at the gather).
+    pub rolling_moment: f64,
+}
+
+/// The half pair list with per-pair contact history.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct PairList {
+    /// CSR offsets, length n + 1: the pairs whose lower index is i.
+    pub first_pair: Vec<u32>,
+    /// The higher index j of each pair.
+    pub partner: Vec<u32>,
+    /// Tangential spring δt of each pair, for i (j's is the negative).
+    pub tangential: Vec<Vec3>,
+    /// EPSD rolling spring torque on i (empty unless EPSD is used).
+    pub rolling: Vec<Vec3>,
+    /// Contributions to the higher-index particle, written by the contact loop.
+    pub partner_share: Vec<PartnerShare>,
+    /// CSR offsets, length n + 1: the pairs in which particle k is the higher index j.
+    pub incidence_start: Vec<u32>,
+    /// Pair indices (ascending) for the incidence CSR.
+    pub incidence_pair: Vec<u32>,
+}
+
+impl PairList {
+    pub fn pair_count(&self) -> usize {
+        self.partner.len()
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.first_pair.len() * 4
+            + self.partner.len() * 4
+            + self.tangential.len() * std::mem::size_of::<Vec3>()
+            + self.rolling.len() * std::mem::size_of::<Vec3>()
+            + self.partner_share.len() * std::mem::size_of::<PartnerShare>()
+            + self.incidence_start.len() * 4
+            + self.incidence_pair.len() * 4
+    }
+
+    /// Find the history of the pair (old index a, old index b) in this (previous) list.
+    #[inline]
+    fn find(&self, a: u32, b: u32) -> Option<(usize, bool)> {
+        let (lo, hi, swapped) = if a < b { (a, b, false) } else { (b, a, true) };
+        let lo = lo as usize;
+        if lo + 1 >= self.first_pair.len() {
+            return None;
+        }
+        let range = self.first_pair[lo] as usize..self.first_pair[lo + 1] as usize;
+        let start = range.start;
+        self.partner[range]
+            .iter()
+            .position(|&j| j == hi)
+            .map(|k| (start + k, swapped))
+    }
+}
+
+/// A uniform grid of cells at least `cell_size` wide covering the domain.
+#[derive(Debug, Clone)]
+pub(crate) struct CellGrid {
+    origin: Vec3,
+    inverse_size: Vec3,
+    dims: [usize; 3],
+    periodic: [bool; 3],
+    /// Start of each cell in `sorted` (length cells + 1).
+    cell_start: Vec<u32>,
+    /// Particle indices in cell order (stable within a cell).
+    pub sorted: Vec<u32>,
+}
+
+impl CellGrid {
+    pub fn build(domain: &Domain, cell_size: f64, positions: &[Vec3]) -> CellGrid {
+        let extent = domain.max - domain.min;
+        let mut dims = [1usize; 3];
+        let mut inverse_size = Vec3::zeros();
+        for a in 0..3 {
+            // Cap the cell count so that a tiny cutoff in a huge box cannot exhaust memory.
+            let n = ((extent[a] / cell_size).floor() as usize).clamp(1, 1024);
+            dims[a] = n;
+            inverse_size[a] = n as f64 / extent[a];
+        }
+        let periodic = [domain.periodic_x, domain.periodic_y, false];
+        let mut grid = CellGrid {
+            origin: domain.min,
+            inverse_size,
+            dims,
+            periodic,
+            cell_start: Vec::new(),
+            sorted: Vec::new(),
+        };
+        let cells: Vec<u32> = positions
+            .par_iter()
+            .with_min_len(CHUNK)
+            .map(|p| grid.cell_of(*p) as u32)
+            .collect();
+        let cell_count = dims[0] * dims[1] * dims[2];
+        let mut start = vec![0u32; cell_count + 1];
+        for &c in &cells {
+            start[c as usize + 1] += 1;
+        }
+        for c in 0..cell_count {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut sorted = vec![0u32; positions.len()];
+        for (k, &c) in cells.iter().enumerate() {
+            sorted[fill[c as usize] as usize] = k as u32;
+            fill[c as usize] += 1;
+        }
+        grid.cell_start = start;
+        grid.sorted = sorted;
+        grid
+    }
+
+    #[inline]
+    fn coords(&self, p: Vec3) -> [usize; 3] {
+        let mut c = [0usize; 3];
+        for a in 0..3 {
+            let x = ((p[a] - self.origin[a]) * self.inverse_size[a]).floor();
+            let n = self.dims[a] as f64;
+            let x = if self.periodic[a] {
+                x - n * (x / n).floor()
+            } else {
+                x
+            };
+            c[a] = x.clamp(0.0, n - 1.0) as usize;
+        }
+        c
+    }
+
+    #[inline]
+    fn cell_of(&self, p: Vec3) -> usize {
+        let [x, y, z] = self.coords(p);
+        (z * self.dims[1] + y) * self.dims[0] + x
+    }
+
+    /// The distinct neighbouring cells (including its own) of the cell containing `p`.
+    fn neighbour_cells(&self, p: Vec3, out: &mut Vec<usize>) {
+        out.clear();
+        let c = self.coords(p);
+        let mut along: [[usize; 3]; 3] = [[0; 3]; 3];
+        let mut counts = [0usize; 3];
+        for a in 0..3 {
+            for d in [-1i64, 0, 1] {
+                let mut x = c[a] as i64 + d;
+                let n = self.dims[a] as i64;
+                if self.periodic[a] {
+                    x = x.rem_euclid(n);
+                } else if x < 0 || x >= n {
+                    continue;
+                }
+                let x = x as usize;
+                if !along[a][..counts[a]].contains(&x) {
+                    along[a][counts[a]] = x;
+                    counts[a] += 1;
+                }
+            }
+        }
+        for &z in &along[2][..counts[2]] {
+            for &y in &along[1][..counts[1]] {
+                for &x in &along[0][..counts[0]] {
+                    out.push((z * self.dims[1] + y) * self.dims[0] + x);
+                }
+            }
+        }
+    }
+
+    /// Call `f` with every particle index in the cells overlapping the box of half-width
+    /// `reach` around `p` (each at most once).
+    pub fn for_each_near(&self, p: Vec3, reach: f64, mut f: impl FnMut(u32)) {
+        let mut ranges = [[0i64; 2]; 3];
+        for a in 0..3 {
+            let n = self.dims[a] as i64;
+            let lo = ((p[a] - reach - self.origin[a]) * self.inverse_size[a]).floor() as i64;
+            let hi = ((p[a] + reach - self.origin[a]) * self.inverse_size[a]).floor() as i64;
+            ranges[a] = if self.periodic[a] {
+                if hi - lo + 1 >= n {
+                    [0, n - 1]
+                } else {
+                    [lo, hi]
+                }
+            } else {
+                [lo.clamp(0, n - 1), hi.clamp(0, n - 1)]
+            };
+        }
+        let wrap = |x: i64, a: usize| x.rem_euclid(self.dims[a] as i64) as usize;
+        for z in ranges[2][0]..=ranges[2][1] {
+            for y in ranges[1][0]..=ranges[1][1] {
+                for x in ranges[0][0]..=ranges[0][1] {
+                    let c = (wrap(z, 2) * self.dims[1] + wrap(y, 1)) * self.dims[0] + wrap(x, 0);
+                    self.cell(c).iter().for_each(|&k| f(k));
+                }
+            }
+        }
+    }
+
+    #[inline]
+    fn cell(&self, c: usize) -> &[u32] {
+        &self.sorted[self.cell_start[c] as usize..self.cell_start[c + 1] as usize]
+    }
+}
+
+/// Build the half pair list for the current particle positions (surface gap < `skin`), carrying
+/// over histories from `previous` via `particles.index_at_build`.
+pub(crate) fn build_pair_list(
+    particles: &Particles,
+    domain: &Domain,
+    grid: &CellGrid,
+    skin: f64,
+    with_rolling_history: bool,
+    previous: &PairList,
+) -> PairList {
+    let n = particles.len();
+    let positions = &particles.position;
+    let radius = &particles.radius;
+    let index_at_build = &particles.index_at_build;
+    let carry_rolling = with_rolling_history && previous.rolling.len() == previous.partner.len();
+
+    struct ChunkPairs {
+        counts: Vec<u32>,
+        partner: Vec<u32>,
+        tangential: Vec<Vec3>,
+        rolling: Vec<Vec3>,
+    }
+
+    let chunks: Vec<ChunkPairs> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|chunk| {
+            let range = chunk * CHUNK..((chunk + 1) * CHUNK).min(n);
+            let mut out = ChunkPairs {
+                counts: Vec::with_capacity(range.len()),
+                partner: Vec::with_capacity(range.len() * 8),
+                tangential: Vec::with_capacity(range.len() * 8),
+                rolling: Vec::new(),
+            };
+            let mut cells = Vec::with_capacity(27);
+            for i in range {
+                let start = out.partner.len();
+                let pi = positions[i];
+                let ri = radius[i];
+                grid.neighbour_cells(pi, &mut cells);
+                for &c in &cells {
+                    for &j in grid.cell(c) {
+                        let j = j as usize;
+                        if j <= i {
+                            continue;
+                        }
+                        let d = domain.minimum_image(positions[j] - pi);
+                        let reach = ri + radius[j] + skin;
+                        if d.norm_squared() < reach * reach {
+                            out.partner.push(j as u32);
+                        }
+                    }
+                }
+                out.partner[start..].sort_unstable();
+                let old_i = index_at_build[i];
+                for k in start..out.partner.len() {
+                    let old_j = index_at_build[out.partner[k] as usize];
+                    let found = if old_i == NEW_PARTICLE || old_j == NEW_PARTICLE {
+                        None
+                    } else {
+                        previous.find(old_i, old_j)
+                    };
+                    let (t, r) = match found {
+                        Some((p, swapped)) => {
+                            let sign = if swapped { -1.0 } else { 1.0 };
+                            let r = if carry_rolling {
+                                previous.rolling[p] * sign
+                            } else {
+                                Vec3::zeros()
+                            };
+                            (previous.tangential[p] * sign, r)
+                        }
+                        None => (Vec3::zeros(), Vec3::zeros()),
+                    };
+                    out.tangential.push(t);
+                    if with_rolling_history {
+                        out.rolling.push(r);
+                    }
+                }
+                out.counts.push((out.partner.len() - start) as u32);
+            }
+            out
+        })
+        .collect();
+
+    let total: usize = chunks.iter().map(|c| c.partner.len()).sum();
+    let mut list = PairList {
+        first_pair: Vec::with_capacity(n + 1),
+        partner: Vec::with_capacity(total),
+        tangential: Vec::with_capacity(total),
+        rolling: Vec::with_capacity(if with_rolling_history { total } else { 0 }),
+        partner_share: vec![PartnerShare::default(); total],
+        incidence_start: vec![0; n + 1],
+        incidence_pair: vec![0; total],
+    };
+    list.first_pair.push(0);
+    let mut offset = 0u32;
+    for chunk in chunks {
+        for c in chunk.counts {
+            offset += c;
+            list.first_pair.push(offset);
+        }
+        list.partner.extend_from_slice(&chunk.partner);
+        list.tangential.extend_from_slice(&chunk.tangential);
+        list.rolling.extend_from_slice(&chunk.rolling);
+    }
+    // Incidence CSR (pairs where k is the higher index), pair indices ascending.
+    for &j in &list.partner {
+        list.incidence_start[j as usize + 1] += 1;
+    }
+    for k in 0..n {
+        list.incidence_start[k + 1] += list.incidence_start[k];
+    }
+    let mut fill = list.incidence_start.clone();
+    for (p, &j) in list.partner.iter().enumerate() {
+        list.incidence_pair[fill[j as usize] as usize] = p as u32;
+        fill[j as usize] += 1;
+    }
+    list
+}

@@ -1,0 +1,166 @@
+//! Particle state as a structure of arrays.
+//!
+//! Each hot loop touches only the arrays it needs (the neighbour build reads positions and
+//! radii; the contact loop positions, velocities, radii, masses, materials), which keeps the
+//! memory traffic per particle low and the arrays streamable. Particles are spheres: their
+//! orientation never enters the contact law, so it is not tracked.
+
+use crate::material::MaterialId;
+use crate::math::Vec3;
+
+/// The index of a particle at the last neighbour build, or this marker if it was added since.
+pub(crate) const NEW_PARTICLE: u32 = u32::MAX;
+
+/// A particle to be added to a world.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParticleSpec {
+    pub position: Vec3,
+    pub velocity: Vec3,
+    pub angular_velocity: Vec3,
+    /// Radius, m.
+    pub radius: f64,
+    pub material: MaterialId,
+}
+
+impl ParticleSpec {
+    /// A particle at rest.
+    pub fn at_rest(position: Vec3, radius: f64, material: MaterialId) -> ParticleSpec {
+        ParticleSpec {
+            position,
+            velocity: Vec3::zeros(),
+            angular_velocity: Vec3::zeros(),
+            radius,
+            material,
+        }
+    }
+}
+
+/// Structure-of-arrays particle storage. Index `k` refers to the same particle in every array;
+/// indices change when particles are removed or re-sorted, `id` never does.
+#[derive(Debug, Clone, Default)]
+pub struct Particles {
+    /// Persistent identity, unique within a world, assigned in creation order.
+    pub id: Vec<u64>,
+    pub position: Vec<Vec3>,
+    pub velocity: Vec<Vec3>,
+    pub angular_velocity: Vec<Vec3>,
+    /// Force and torque of the last force evaluation (N, N·m).
+    pub force: Vec<Vec3>,
+    pub torque: Vec<Vec3>,
+    pub radius: Vec<f64>,
+    pub mass: Vec<f64>,
+    /// 1 / I with I = 2/5 m R² (solid sphere).
+    pub inverse_inertia: Vec<f64>,
+    pub material: Vec<MaterialId>,
+    /// Position at the last neighbour build (for the skin criterion).
+    pub(crate) position_at_build: Vec<Vec3>,
+    /// Index at the last neighbour build, or [`NEW_PARTICLE`]: lets the rebuild find each
+    /// particle's previous contact histories after removal and re-sorting.
+    pub(crate) index_at_build: Vec<u32>,
+    /// Contact histories of this particle with geometries (usually empty: no allocation).
+    pub(crate) wall_history: Vec<Vec<WallHistory>>,
+}
+
+/// Contact history of one particle-geometry contact. The owning triangle changes as a sphere
+/// slides across a mesh, so the history is matched from step to step by geometry and by the
+/// nearest previous contact normal instead.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct WallHistory {
+    pub geometry: u32,
+    pub normal: Vec3,
+    pub tangential: Vec3,
+    pub rolling: Vec3,
+}
+
+impl Particles {
+    pub fn len(&self) -> usize {
+        self.id.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.id.is_empty()
+    }
+
+    pub(crate) fn push(&mut self, id: u64, spec: &ParticleSpec, density: f64) {
+        let mass = density * 4.0 / 3.0 * std::f64::consts::PI * spec.radius.powi(3);
+        self.id.push(id);
+        self.position.push(spec.position);
+        self.velocity.push(spec.velocity);
+        self.angular_velocity.push(spec.angular_velocity);
+        self.force.push(Vec3::zeros());
+        self.torque.push(Vec3::zeros());
+        self.radius.push(spec.radius);
+        self.mass.push(mass);
+        self.inverse_inertia
+            .push(1.0 / (0.4 * mass * spec.radius * spec.radius));
+        self.material.push(spec.material);
+        self.position_at_build.push(spec.position);
+        self.index_at_build.push(NEW_PARTICLE);
+        self.wall_history.push(Vec::new());
+    }
+
+    /// Reorder (and drop) particles: afterwards particle `k` is the former particle
+    /// `order[k]`. Deterministic; used for removal (compaction keeping relative order) and for
+    /// spatial sorting.
+    pub(crate) fn permute(&mut self, order: &[u32]) {
+        fn apply<T: Copy>(v: &mut Vec<T>, order: &[u32]) {
+            let permuted: Vec<T> = order.iter().map(|&k| v[k as usize]).collect();
+            *v = permuted;
+        }
+        apply(&mut self.id, order);
+        apply(&mut self.position, order);
+        apply(&mut self.velocity, order);
+        apply(&mut self.angular_velocity, order);
+        apply(&mut self.force, order);
+        apply(&mut self.torque, order);
+        apply(&mut self.radius, order);
+        apply(&mut self.mass, order);
+        apply(&mut self.inverse_inertia, order);
+        apply(&mut self.material, order);
+        apply(&mut self.position_at_build, order);
+        apply(&mut self.index_at_build, order);
+        let mut old = std::mem::take(&mut self.wall_history);
+        self.wall_history = order
+            .iter()
+            .map(|&k| std::mem::take(&mut old[k as usize]))
+            .collect();
+    }
+
+    /// Kinetic energy (translational + rotational), J.
+    pub fn kinetic_energy(&self) -> f64 {
+        (0..self.len())
+            .map(|k| {
+                0.5 * self.mass[k] * self.velocity[k].norm_squared()
+                    + 0.5 * self.angular_velocity[k].norm_squared() / self.inverse_inertia[k]
+            })
+            .sum()
+    }
+
+    /// Total linear momentum, kg·m/s.
+    pub fn momentum(&self) -> Vec3 {
+        (0..self.len()).fold(Vec3::zeros(), |acc, k| {
+            acc + self.velocity[k] * self.mass[k]
+        })
+    }
+
+    /// Index of the particle with persistent id `id` (linear search).
+    pub fn index_of(&self, id: u64) -> Option<usize> {
+        self.id.iter().position(|&x| x == id)
+    }
+
+    /// Approximate heap bytes held by the arrays (lengths, not capacities).
+    pub fn memory_bytes(&self) -> usize {
+        self.len()
+            * (8 + 5 * std::mem::size_of::<Vec3>()
+                + 3 * 8
+                + std::mem::size_of::<MaterialId>()
+                + std::mem::size_of::<Vec3>()
+                + 4
+                + std::mem::size_of::<Vec<WallHistory>>())
+            + self
+                .wall_history
+                .iter()
+                .map(|w| w.len() * std::mem::size_of::<WallHistory>())
+                .sum::<usize>()
+    }
+}
