@@ -193,7 +193,7 @@ impl SizeDistribution {
                 ordered("max_radius", *max_radius, "min_radius", *min_radius)?;
                 let probability = standard_normal_cdf((max_radius - mean_radius) / std_dev)
                     - standard_normal_cdf((min_radius - mean_radius) / std_dev);
-                if !(probability >= 1e-3) {
+                if probability.is_nan() || probability < 1e-3 {
                     return Err(DistributionError::EmptyWindow {
                         min_radius: *min_radius,
                         max_radius: *max_radius,

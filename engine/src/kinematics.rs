@@ -189,7 +189,7 @@ impl Motion {
             check_finite("rotations", i, "rpm", &[s.rpm])?;
             check_interval("rotations", i, s.start, s.stop)?;
             let norm = s.axis.norm();
-            if !(norm > 0.0) {
+            if norm <= 0.0 {
                 return Err(MotionError::ZeroAxis { segment: i });
             }
             let axis = s.axis / norm;

@@ -86,6 +86,12 @@ pub struct MeshContact {
 struct TriMeshData {
     vertices: Vec<Vec3>,
     triangles: Vec<[u32; 3]>,
+    #[serde(default = "default_smooth_angle")]
+    smooth_angle_deg: f64,
+}
+
+fn default_smooth_angle() -> f64 {
+    DEFAULT_SMOOTH_ANGLE_DEG
 }
 
 /// A triangle mesh with the precomputed data needed for fast sphere contacts.
@@ -109,13 +115,17 @@ pub struct TriMesh {
     hi: Vec3,
     /// Length below which two points count as the same (welding, contact de-duplication).
     tolerance: f64,
+    /// Contacts whose normals differ by less than this angle (degrees) belong to one smooth
+    /// surface and are merged into the deepest; cosine cached below.
+    smooth_angle_deg: f64,
+    smooth_cos: f64,
     grid: Grid,
 }
 
 impl TryFrom<TriMeshData> for TriMesh {
     type Error = MeshError;
     fn try_from(data: TriMeshData) -> Result<Self, MeshError> {
-        TriMesh::new(data.vertices, data.triangles)
+        TriMesh::new(data.vertices, data.triangles)?.with_smooth_angle(data.smooth_angle_deg)
     }
 }
 
@@ -124,9 +134,15 @@ impl From<TriMesh> for TriMeshData {
         TriMeshData {
             vertices: mesh.vertices,
             triangles: mesh.triangles,
+            smooth_angle_deg: mesh.smooth_angle_deg,
         }
     }
 }
+
+/// Default for [`TriMesh::with_smooth_angle`]. Facetted curved walls have small dihedral angles
+/// between neighbouring facets (a 64-facet funnel: 5.6°, a 24-facet cylinder: 15°), while the
+/// corners of a soil bin or the flight/shaft junction are 90°.
+pub const DEFAULT_SMOOTH_ANGLE_DEG: f64 = 25.0;
 
 /// Relative tolerance (times the mesh's bounding-box diagonal) for "the same point".
 const RELATIVE_TOLERANCE: f64 = 1e-9;
@@ -187,7 +203,7 @@ impl TriMesh {
             let double_area = cross.norm();
             // Relative to the mesh size, so a 1 mm triangle in a 1 m mesh is fine while a
             // sliver that is collinear up to rounding is not.
-            if !(double_area > tolerance * diagonal) {
+            if double_area.is_nan() || double_area <= tolerance * diagonal {
                 return Err(MeshError::DegenerateTriangle {
                     triangle,
                     area: 0.5 * double_area,
@@ -233,6 +249,8 @@ impl TriMesh {
             lo,
             hi,
             tolerance,
+            smooth_angle_deg: DEFAULT_SMOOTH_ANGLE_DEG,
+            smooth_cos: DEFAULT_SMOOTH_ANGLE_DEG.to_radians().cos(),
             grid,
         })
     }
@@ -285,7 +303,7 @@ impl TriMesh {
             .iter()
             .map(|v| pose.transform_point(&(*v).into()).coords)
             .collect();
-        TriMesh::new(vertices, self.triangles.clone())
+        TriMesh::new(vertices, self.triangles.clone())?.with_smooth_angle(self.smooth_angle_deg)
     }
 
     /// Concatenates meshes into one (e.g. a funnel plus its support plate).
@@ -309,9 +327,13 @@ impl TriMesh {
     /// contact. An edge or vertex contact is kept only if its point is a local minimum of the
     /// distance over the triangles sharing that edge or vertex (so it is dropped when a
     /// neighbour reaches closer, e.g. because the neighbour produced a face contact), and any
-    /// contact whose point coincides (within tolerance) with one already found is dropped. This
-    /// gives one contact per flat region, one per convex edge or corner, and one per wall in a
-    /// concave corner.
+    /// contact whose point coincides (within tolerance) with one already found is dropped.
+    /// Finally contacts whose normals are within the smooth angle (default
+    /// [`DEFAULT_SMOOTH_ANGLE_DEG`]) are merged into the deepest, so a sphere in a shallow
+    /// concave crease of a facetted curved wall gets one contact. This gives one contact per
+    /// flat or smoothly curved region, one per convex edge or corner, and one per wall in a
+    /// concave corner. The result does not depend on triangle order, so the broad phase and
+    /// [`TriMesh::sphere_contacts_brute_force`] agree.
     ///
     /// Pushes into `out` (does not clear it). A non-finite centre or a radius that is not
     /// positive yields no contacts.
@@ -328,6 +350,7 @@ impl TriMesh {
                 self.add_triangle_contact(t, center, radius, start, out);
             }
         });
+        self.merge_smooth(start, out);
     }
 
     /// Same result as [`TriMesh::sphere_contacts`] by testing every triangle: the reference
@@ -345,6 +368,63 @@ impl TriMesh {
         for t in 0..self.triangles.len() as u32 {
             self.add_triangle_contact(t, center, radius, start, out);
         }
+        self.merge_smooth(start, out);
+    }
+
+    /// Sets the angle (degrees, in [0, 90)) below which two contacts' normals count as the
+    /// same smooth surface (see [`TriMesh::sphere_contacts`]). 0 disables merging.
+    pub fn with_smooth_angle(mut self, degrees: f64) -> Result<TriMesh, MeshError> {
+        if !(degrees.is_finite() && (0.0..90.0).contains(&degrees)) {
+            return Err(MeshError::parameter(
+                "smooth_angle_deg",
+                degrees,
+                "must be in [0, 90) degrees",
+            ));
+        }
+        self.smooth_angle_deg = degrees;
+        // Strictly greater-than comparisons below: with 0° only identical normals would merge,
+        // and those are already the same point or a genuinely separate contact, so keep them.
+        self.smooth_cos = if degrees == 0.0 {
+            2.0
+        } else {
+            degrees.to_radians().cos()
+        };
+        Ok(self)
+    }
+
+    pub fn smooth_angle_deg(&self) -> f64 {
+        self.smooth_angle_deg
+    }
+
+    /// Keeps, among contacts whose normals are within the smooth angle of each other, only the
+    /// deepest. A sphere in a shallow concave crease of a facetted curved wall (inside a
+    /// funnel or cylinder) touches two facets' faces at distinct points; both are genuine local
+    /// minima, but they are one surface, and reporting both would double the wall force.
+    /// Deepest-first makes the result independent of the order triangles were visited, and
+    /// keeps the overlap continuous as a sphere slides across the crease.
+    fn merge_smooth(&self, start: usize, out: &mut Vec<MeshContact>) {
+        if out.len() - start < 2 {
+            return;
+        }
+        out[start..].sort_by(|a, b| {
+            b.overlap
+                .total_cmp(&a.overlap)
+                .then(a.point.x.total_cmp(&b.point.x))
+                .then(a.point.y.total_cmp(&b.point.y))
+                .then(a.point.z.total_cmp(&b.point.z))
+        });
+        let mut kept = start;
+        for i in start..out.len() {
+            let candidate = out[i];
+            if out[start..kept]
+                .iter()
+                .all(|k| k.normal.dot(&candidate.normal) <= self.smooth_cos)
+            {
+                out[kept] = candidate;
+                kept += 1;
+            }
+        }
+        out.truncate(kept);
     }
 
     fn query_is_valid(center: Vec3, radius: f64) -> bool {
@@ -363,7 +443,7 @@ impl TriMesh {
         let (point, feature) = closest_point_on_triangle(center, a, b, c);
         let offset = center - point;
         let distance_squared = offset.norm_squared();
-        if !(distance_squared < radius * radius) {
+        if distance_squared.is_nan() || distance_squared >= radius * radius {
             return;
         }
         if feature != Feature::Face && !self.is_local_minimum(t, feature, point, center) {
