@@ -83,7 +83,7 @@ pub enum FitError {
     #[error("the model has no factors")]
     NoFactors,
     /// A factor name is empty or contains a character reserved for term names.
-    #[error("invalid factor name {name:?}: names must be non-empty and must not contain ':', '*', '^' or whitespace")]
+    #[error("invalid factor name {name:?}: names must be non-empty, must not be `Intercept` or `1` (they name the constant term) and must not contain ':', '*', '^' or whitespace")]
     InvalidFactorName {
         /// The offending name.
         name: String,

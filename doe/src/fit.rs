@@ -149,12 +149,18 @@ impl Fit {
     }
 
     /// ANOVA row by source: `Model`, a term name, `Residual`, `Lack of Fit`,
-    /// `Pure Error` or `Cor Total`.
+    /// `Pure Error` or `Cor Total`. If a factor is itself called e.g.
+    /// `Model`, the summary row wins; use [`Fit::term_anova`] for terms.
     pub fn anova_row(&self, source: &str) -> Option<&AnovaRow> {
-        if let Some(row) = self.anova.iter().find(|r| r.source == source) {
-            return Some(row);
-        }
-        let term = self.model.parse_term(source).ok()?;
+        self.anova
+            .iter()
+            .find(|r| r.kind != AnovaSource::Term && r.source == source)
+            .or_else(|| self.term_anova(source))
+    }
+
+    /// ANOVA row of a model term, by canonical or parseable name (`A:B`, `B*A`).
+    pub fn term_anova(&self, term: &str) -> Option<&AnovaRow> {
+        let term = self.model.parse_term(term).ok()?;
         self.anova
             .iter()
             .find(|r| r.kind == AnovaSource::Term && r.source == term.name())
@@ -269,7 +275,7 @@ pub fn fit_with_options<R: AsRef<[f64]>>(
         let worst = (0..current.len())
             .filter(|&i| current.is_removable(i))
             .filter_map(|i| {
-                let row = f.anova_row(current.terms()[i].name())?;
+                let row = f.term_anova(current.terms()[i].name())?;
                 Some((i, row.f, row.p?))
             })
             .max_by(|a, b| a.2.total_cmp(&b.2));

@@ -182,6 +182,7 @@ fn check_factors<S: AsRef<str>>(factors: &[S]) -> Result<Vec<String>, FitError> 
         let f = f.as_ref();
         if f.is_empty()
             || f.eq_ignore_ascii_case("intercept")
+            || f == "1"
             || f.chars()
                 .any(|c| c == ':' || c == '*' || c == '^' || c.is_whitespace())
         {
