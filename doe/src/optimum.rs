@@ -333,7 +333,8 @@ pub struct OptimumResult {
     pub distinct_at_best: usize,
     /// Largest distance (coded units) between two tied-best solutions.
     pub spread: f64,
-    /// Per-factor minimum over the tied-best solutions (coded).
+    /// Per-factor minimum over the tied-best solutions (coded); empty when
+    /// no point has a desirability above 0.
     pub coded_min: Vec<f64>,
     /// Per-factor maximum over the tied-best solutions (coded).
     pub coded_max: Vec<f64>,
@@ -586,20 +587,15 @@ pub fn optimize(
             spread = spread.max(dist(a, b));
         }
     }
-    let mut coded_min = vec![f64::NAN; k];
-    let mut coded_max = vec![f64::NAN; k];
+    // Bounding box of the tied set (empty when nothing is feasible).
+    let (mut coded_min, mut coded_max) = match tied.first() {
+        Some(first) => (first.0.clone(), first.0.clone()),
+        None => (Vec::new(), Vec::new()),
+    };
     for e in &tied {
         for j in 0..k {
-            coded_min[j] = if coded_min[j].is_nan() {
-                e.0[j]
-            } else {
-                coded_min[j].min(e.0[j])
-            };
-            coded_max[j] = if coded_max[j].is_nan() {
-                e.0[j]
-            } else {
-                coded_max[j].max(e.0[j])
-            };
+            coded_min[j] = coded_min[j].min(e.0[j]);
+            coded_max[j] = coded_max[j].max(e.0[j]);
         }
     }
     // The rest: by decreasing desirability (then smaller violation).

@@ -155,6 +155,8 @@ fn unreachable_goal_reports_zero_desirability() {
     assert_eq!(r.best_desirability, 0.0);
     assert!(!r.level_set);
     assert!(r.note.starts_with("no point of the region"), "{}", r.note);
+    assert!(r.coded_min.is_empty() && r.natural_min.is_none());
+    assert_eq!(r.starts_at_best, 0);
     // The closest approach is the corner (1, 1).
     let x = &r.solutions[0].coded;
     assert!(
