@@ -39,15 +39,26 @@ impl Domain {
     }
 
     /// The shortest periodic image of a separation vector.
+    ///
+    /// Both positions are kept inside the box, so |d| < L and one conditional shift suffices
+    /// (much cheaper than `round`, which is a libm call).
     #[inline]
     pub(crate) fn minimum_image(&self, mut d: Vec3) -> Vec3 {
+        #[inline]
+        fn image(d: f64, length: f64) -> f64 {
+            if d > 0.5 * length {
+                d - length
+            } else if d < -0.5 * length {
+                d + length
+            } else {
+                d
+            }
+        }
         if self.periodic_x {
-            let l = self.max.x - self.min.x;
-            d.x -= l * (d.x / l).round();
+            d.x = image(d.x, self.max.x - self.min.x);
         }
         if self.periodic_y {
-            let l = self.max.y - self.min.y;
-            d.y -= l * (d.y / l).round();
+            d.y = image(d.y, self.max.y - self.min.y);
         }
         d
     }
@@ -55,13 +66,26 @@ impl Domain {
     /// Map a position back into the box across periodic faces.
     #[inline]
     pub(crate) fn wrap(&self, mut p: Vec3) -> Vec3 {
+        #[inline]
+        fn wrap(x: f64, min: f64, max: f64) -> f64 {
+            if x >= min && x < max {
+                x
+            } else {
+                let length = max - min;
+                let wrapped = x - length * ((x - min) / length).floor();
+                // Rounding can land exactly on `max`.
+                if wrapped >= max {
+                    min
+                } else {
+                    wrapped
+                }
+            }
+        }
         if self.periodic_x {
-            let l = self.max.x - self.min.x;
-            p.x -= l * ((p.x - self.min.x) / l).floor();
+            p.x = wrap(p.x, self.min.x, self.max.x);
         }
         if self.periodic_y {
-            let l = self.max.y - self.min.y;
-            p.y -= l * ((p.y - self.min.y) / l).floor();
+            p.y = wrap(p.y, self.min.y, self.max.y);
         }
         p
     }

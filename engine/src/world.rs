@@ -145,8 +145,8 @@ enum AfterForces {
     Nothing,
 }
 
-/// A DEM simulation.
-#[derive(Debug)]
+/// A DEM simulation. Cloning copies the complete state (a checkpoint).
+#[derive(Debug, Clone)]
 pub struct World {
     config: WorldConfig,
     materials: MaterialTable,

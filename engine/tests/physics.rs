@@ -682,3 +682,32 @@ fn results_are_bit_identical_across_thread_counts_and_runs() {
     assert_eq!(one, two);
     assert_eq!(two, again);
 }
+
+/// Throughput figures (run explicitly: `cargo test -p repose-engine --test physics
+/// bench_throughput -- --ignored --nocapture`; BENCH_PARTICLES, BENCH_STEPS override).
+#[test]
+#[ignore]
+fn bench_throughput() {
+    use repose_engine::bench::{settled_bed, time_steps};
+    let env = |name: &str, default: u64| {
+        std::env::var(name)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(default)
+    };
+    let particles = env("BENCH_PARTICLES", 20_000) as usize;
+    let steps = env("BENCH_STEPS", 2000);
+    let bed = settled_bed(particles, 1).unwrap();
+    for threads in [1, 2] {
+        let r = time_steps(&bed, threads, steps);
+        println!("{r:?}");
+        println!(
+            "{} particles, {threads} threads: {:.2} M particle-steps/s, {:.0} B/particle, \
+             {:.2} contacts/particle",
+            r.particles,
+            r.particle_steps_per_second / 1e6,
+            r.bytes_per_particle,
+            r.contacts_per_particle
+        );
+    }
+}
