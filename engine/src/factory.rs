@@ -42,6 +42,12 @@ pub enum FactoryError {
     },
     #[error("max_attempts_per_particle must be at least 1")]
     NoAttempts,
+    #[error("particles[{index}].{field} is invalid: {value:?} (must be finite; radius > 0)")]
+    ListedParticle {
+        index: usize,
+        field: &'static str,
+        value: [f64; 3],
+    },
 }
 
 /// Where new particle centres go. The whole sphere is kept inside the region.
@@ -360,24 +366,88 @@ pub struct ListedParticle {
 
 /// A fixed list of particles inserted all at once at `time` (e.g. a prepared packing). They
 /// are inserted as given, without overlap checks: the list is the caller's responsibility.
+/// Radii, positions and velocities are validated on construction (and deserialisation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "ParticleListData", into = "ParticleListData")]
 pub struct ParticleList {
-    pub time: f64,
-    pub particles: Vec<ListedParticle>,
+    time: f64,
+    particles: Vec<ListedParticle>,
+    inserted: bool,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ParticleListData {
+    time: f64,
+    particles: Vec<ListedParticle>,
     #[serde(default)]
     inserted: bool,
 }
 
+impl TryFrom<ParticleListData> for ParticleList {
+    type Error = FactoryError;
+    fn try_from(d: ParticleListData) -> Result<Self, FactoryError> {
+        let mut list = ParticleList::new(d.time, d.particles)?;
+        list.inserted = d.inserted;
+        Ok(list)
+    }
+}
+
+impl From<ParticleList> for ParticleListData {
+    fn from(l: ParticleList) -> Self {
+        ParticleListData {
+            time: l.time,
+            particles: l.particles,
+            inserted: l.inserted,
+        }
+    }
+}
+
 impl ParticleList {
-    pub fn new(time: f64, particles: Vec<ListedParticle>) -> ParticleList {
-        ParticleList {
+    /// Validates every particle (finite centre and velocity, positive radius) and `time`.
+    pub fn new(time: f64, particles: Vec<ListedParticle>) -> Result<ParticleList, FactoryError> {
+        if !time.is_finite() {
+            return Err(FactoryError::NotFinite {
+                field: "time",
+                value: [time; 3],
+            });
+        }
+        for (index, p) in particles.iter().enumerate() {
+            let bad = |field: &'static str, v: Vec3| FactoryError::ListedParticle {
+                index,
+                field,
+                value: [v.x, v.y, v.z],
+            };
+            if !p.center.iter().all(|c| c.is_finite()) {
+                return Err(bad("center", p.center));
+            }
+            if !p.velocity.iter().all(|c| c.is_finite()) {
+                return Err(bad("velocity", p.velocity));
+            }
+            if !(p.radius.is_finite() && p.radius > 0.0) {
+                return Err(bad("radius", Vec3::repeat(p.radius)));
+            }
+        }
+        Ok(ParticleList {
             time,
             particles,
             inserted: false,
-        }
+        })
     }
 
-    /// Pushes the whole list once, in the first step that reaches `time`.
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    pub fn particles(&self) -> &[ListedParticle] {
+        &self.particles
+    }
+
+    /// Whether the list has been inserted already.
+    pub fn is_inserted(&self) -> bool {
+        self.inserted
+    }
+
+    /// Pushes the whole list once, in the first step whose end `t + dt` reaches `time`.
     pub fn spawn(&mut self, t: f64, dt: f64, out: &mut Vec<NewParticle>) -> usize {
         if self.inserted || t + dt < self.time {
             return 0;

@@ -1373,11 +1373,69 @@ fn explicit_list_is_inserted_once_at_its_time() {
             velocity: Vec3::z(),
         },
     ];
-    let mut list = ParticleList::new(0.5, particles);
+    let bad = vec![ListedParticle {
+        center: Vec3::zeros(),
+        radius: 0.0,
+        velocity: Vec3::zeros(),
+    }];
+    let e = ParticleList::new(0.5, bad).unwrap_err();
+    assert!(e.to_string().contains("particles[0].radius"), "{e}");
+    let mut list = ParticleList::new(0.5, particles).unwrap();
     let mut out = Vec::new();
     assert_eq!(list.spawn(0.0, 0.1, &mut out), 0);
     assert_eq!(list.spawn(0.45, 0.1, &mut out), 2);
     assert_eq!(list.spawn(0.55, 0.1, &mut out), 0);
     assert_eq!(out.len(), 2);
     assert_eq!(out[1], (Vec3::x(), 2e-3, Vec3::z()));
+}
+
+/// Broad-phase cost: `cargo test -p repose-engine --test geometry -- --ignored --nocapture`.
+#[test]
+#[ignore = "timing report, not a check"]
+fn broad_phase_query_cost() {
+    use rand::Rng;
+    let meshes = [
+        ("auger", auger(&test_auger_spec()).unwrap()),
+        ("plane 200x200", plane(1.0, 1.0, 200, 200).unwrap()),
+    ];
+    for (name, mesh) in &meshes {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let (lo, hi) = mesh.aabb();
+        let queries: Vec<Vec3> = (0..2000)
+            .map(|_| {
+                let v = mesh.vertices()[rng.gen_range(0..mesh.vertices().len())];
+                v + Vec3::new(rng.gen(), rng.gen(), rng.gen()) * 0.002
+            })
+            .collect();
+        let radius = 0.001;
+        let time = |f: &dyn Fn(Vec3, &mut Vec<MeshContact>)| {
+            let mut out = Vec::new();
+            let start = std::time::Instant::now();
+            let mut found = 0;
+            for _ in 0..5 {
+                for &q in &queries {
+                    out.clear();
+                    f(q, &mut out);
+                    found += out.len();
+                }
+            }
+            (
+                start.elapsed().as_secs_f64() / (5 * queries.len()) as f64,
+                found,
+            )
+        };
+        let (fast, nf) = time(&|q, out| mesh.sphere_contacts(q, radius, out));
+        let (slow, ns) = time(&|q, out| mesh.sphere_contacts_brute_force(q, radius, out));
+        assert_eq!(nf, ns);
+        println!(
+            "{name}: {} triangles, {} cells, bounds {:?}..{:?}: grid {:.2} µs/query, brute force {:.1} µs/query ({:.0}×)",
+            mesh.triangles().len(),
+            mesh.grid_cell_count(),
+            lo,
+            hi,
+            fast * 1e6,
+            slow * 1e6,
+            slow / fast
+        );
+    }
 }

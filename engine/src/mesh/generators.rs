@@ -387,7 +387,9 @@ pub fn auger(spec: &AugerSpec) -> Result<TriMesh, MeshError> {
     let rs = 0.5 * spec.shaft_diameter;
     let ro = 0.5 * spec.flight_outer_diameter;
     let n = spec.segments_per_turn;
-    let segment_length = TAU * rs / n as f64;
+    // Shaft facets as long as the flight's outer facets are wide: squarer facets on the thin
+    // shaft would multiply its triangle count without making contacts any smoother.
+    let segment_length = TAU * ro / n as f64;
     let mut b = Builder::default();
 
     // Shaft from the top of the tip to the top, then the tip (or a flat end) below it.

@@ -26,6 +26,18 @@ pub(crate) struct Grid {
 /// box cannot allocate an absurd grid.
 const MAX_CELLS_PER_TRIANGLE: usize = 4;
 const MIN_CELL_BUDGET: usize = 64;
+/// Upper bound on the average number of cells a triangle is listed in (memory bound).
+const MAX_ENTRIES_PER_TRIANGLE: usize = 16;
+
+/// Cell containing `p`, clamped into the grid.
+fn cell_index(p: Vec3, lo: Vec3, inverse_cell_size: f64, dims: [usize; 3]) -> [u32; 3] {
+    let mut idx = [0u32; 3];
+    for axis in 0..3 {
+        let f = ((p[axis] - lo[axis]) * inverse_cell_size).floor();
+        idx[axis] = f.clamp(0.0, (dims[axis] - 1) as f64) as u32;
+    }
+    idx
+}
 
 impl Grid {
     /// Builds the grid from per-triangle bounding boxes and the overall bounds.
@@ -44,22 +56,34 @@ impl Grid {
             }
             d
         };
-        let mut dims = dims_for(cell);
-        while dims[0] * dims[1] * dims[2] > budget {
-            cell *= 1.25;
-            dims = dims_for(cell);
-        }
-        let inverse_cell_size = 1.0 / cell;
-        let cell_count = dims[0] * dims[1] * dims[2];
-
-        let cell_of = |p: Vec3| -> [u32; 3] {
-            let mut idx = [0u32; 3];
-            for axis in 0..3 {
-                let f = ((p[axis] - lo[axis]) * inverse_cell_size).floor();
-                idx[axis] = f.clamp(0.0, (dims[axis] - 1) as f64) as u32;
+        // Grow the cells until both the cell count and the total number of (triangle, cell)
+        // entries fit their budgets. The second matters for long thin triangles, such as a
+        // fine fan closing a disc, whose bounding boxes each cover many cells.
+        let entry_budget = (MAX_ENTRIES_PER_TRIANGLE * n).max(MIN_CELL_BUDGET);
+        let (dims, inverse_cell_size) = loop {
+            let dims = dims_for(cell);
+            let inverse = 1.0 / cell;
+            if dims[0] * dims[1] * dims[2] <= budget {
+                let entries: usize = tri_boxes
+                    .iter()
+                    .map(|(a, b)| {
+                        let (ca, cb) = (
+                            cell_index(*a, lo, inverse, dims),
+                            cell_index(*b, lo, inverse, dims),
+                        );
+                        (0..3)
+                            .map(|k| (cb[k] - ca[k] + 1) as usize)
+                            .product::<usize>()
+                    })
+                    .sum();
+                if entries <= entry_budget || dims == [1, 1, 1] {
+                    break (dims, inverse);
+                }
             }
-            idx
+            cell *= 1.25;
         };
+        let cell_count = dims[0] * dims[1] * dims[2];
+        let cell_of = |p: Vec3| cell_index(p, lo, inverse_cell_size, dims);
         let linear = |i: usize, j: usize, k: usize| (k * dims[1] + j) * dims[0] + i;
 
         let ranges: Vec<([u32; 3], [u32; 3])> = tri_boxes
