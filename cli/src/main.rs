@@ -1,1 +1,46 @@
-fn main() {}
+//! `repose`: the one user-facing binary. Thin by design: it parses arguments, reads files,
+//! calls the libraries and prints. Every user error is one line on stderr and exit status 2.
+
+mod analyze;
+mod design_cmd;
+mod levels;
+mod table;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "repose",
+    version,
+    about = "Calibrate DEM contact parameters of granular soils"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Print an experimental design (coded and natural columns) as CSV or JSON.
+    Design(design_cmd::DesignArgs),
+    /// Fit a response-surface model to a run table and print the ANOVA (like Design-Expert).
+    Analyze(analyze::AnalyzeArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Design(args) => design_cmd::run(&args),
+        Command::Analyze(args) => analyze::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            // One line: the context chain joined, outermost first.
+            let chain: Vec<String> = err.chain().map(ToString::to_string).collect();
+            eprintln!("error: {}", chain.join(": "));
+            ExitCode::from(2)
+        }
+    }
+}
