@@ -47,6 +47,8 @@ pub enum MotionError {
     DifferentAxis { segment: usize },
     #[error("placement is not finite")]
     NonFinitePlacement,
+    #[error("{name} = {value} must be finite and > 0")]
+    NotPositive { name: &'static str, value: f64 },
 }
 
 /// Constant world-frame velocity between `start` and `stop` (s).
@@ -237,6 +239,15 @@ impl Motion {
         depth: f64,
         withdraw_speed: f64,
     ) -> Result<Motion, MotionError> {
+        for (name, value) in [
+            ("feed_speed", feed_speed),
+            ("depth", depth),
+            ("withdraw_speed", withdraw_speed),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(MotionError::NotPositive { name, value });
+            }
+        }
         let feed_stop = start + depth / feed_speed;
         let withdraw_stop = feed_stop + depth / withdraw_speed;
         Motion::new(

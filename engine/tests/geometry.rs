@@ -835,6 +835,19 @@ fn mesh_spec_builds_from_json() {
     let bin: MeshSpec =
         serde_json::from_str(r#"{"kind":"open_box","size_x":1,"size_y":1,"height":0.5}"#).unwrap();
     assert_eq!(bin.build().unwrap().triangles().len(), 10);
+    let auger_json = r#"{"kind":"auger","shaft_diameter":0.02,"flight_outer_diameter":0.06,
+        "pitch":0.04,"flight_length":0.2,"flight_thickness":0.003,"shaft_length":0.5}"#;
+    let spec: MeshSpec = serde_json::from_str(auger_json).unwrap();
+    let MeshSpec::Auger(a) = &spec else {
+        panic!("not an auger: {spec:?}")
+    };
+    assert!(a.right_handed && a.segments_per_turn == 64 && a.tip_length == 0.0);
+    assert!(spec.build().is_ok());
+    let missing: MeshSpec =
+        serde_json::from_str(r#"{"kind":"stl","path":"/nonexistent/wall.stl","scale":0.001}"#)
+            .unwrap();
+    let e = missing.build().unwrap_err();
+    assert!(e.to_string().contains("/nonexistent/wall.stl"), "{e}");
 }
 
 #[test]
@@ -1024,6 +1037,8 @@ fn motion_validation_names_the_problem() {
     )
     .unwrap_err();
     assert!(matches!(e, MotionError::DifferentAxis { segment: 1 }));
+    let e = Motion::drilling(Pose::identity(), 0.0, -400.0, 0.0, 0.6, 0.02).unwrap_err();
+    assert!(e.to_string().contains("feed_speed"), "{e}");
     let bad: Result<Motion, _> =
         serde_json::from_str(r#"{"translations":[{"velocity":[0,0,1],"start":3,"stop":1}]}"#);
     assert!(bad.unwrap_err().to_string().contains("stop"));

@@ -13,6 +13,18 @@ use serde::{Deserialize, Serialize};
 use super::{MeshError, TriMesh};
 use crate::math::Vec3;
 
+fn default_segments() -> usize {
+    64
+}
+
+fn default_scale() -> f64 {
+    1.0
+}
+
+fn default_true() -> bool {
+    true
+}
+
 /// Upper bound on any subdivision count: protects against absurd allocations from a typo.
 const MAX_SUBDIVISIONS: usize = 100_000;
 
@@ -243,6 +255,7 @@ pub struct FunnelSpec {
     /// Top rim diameter or cone height.
     pub top: FunnelTop,
     /// Facets around the axis (at least 8; 64 is smooth enough for mm-sized grains).
+    #[serde(default = "default_segments")]
     pub segments: usize,
 }
 
@@ -323,9 +336,12 @@ pub struct AugerSpec {
     /// Total length of the shaft from the tip (m), at least tip + flight length.
     pub shaft_length: f64,
     /// Length of the conical drill tip (m); 0 for a flat-ended shaft.
+    #[serde(default)]
     pub tip_length: f64,
     /// Facets per turn around the axis (at least 12; 64 is a good default).
+    #[serde(default = "default_segments")]
     pub segments_per_turn: usize,
+    #[serde(default = "default_true")]
     pub right_handed: bool,
 }
 
@@ -483,6 +499,13 @@ pub enum MeshSpec {
     },
     Funnel(FunnelSpec),
     Auger(AugerSpec),
+    /// An STL file (the only variant that reads a file); `scale` converts its units to metres
+    /// (0.001 for millimetres).
+    Stl {
+        path: std::path::PathBuf,
+        #[serde(default = "default_scale")]
+        scale: f64,
+    },
 }
 
 impl MeshSpec {
@@ -513,6 +536,7 @@ impl MeshSpec {
             } => cylinder(*radius, *height, *segments, *bottom),
             MeshSpec::Funnel(spec) => funnel(spec),
             MeshSpec::Auger(spec) => auger(spec),
+            MeshSpec::Stl { path, scale } => TriMesh::from_stl_file(path, *scale),
         }
     }
 }
