@@ -40,6 +40,8 @@ pub enum FactoryError {
         other_field: &'static str,
         other: f64,
     },
+    #[error("region is too small for the largest particle (radius {max_radius} m): {reason}")]
+    RegionTooSmall { max_radius: f64, reason: String },
     #[error("max_attempts_per_particle must be at least 1")]
     NoAttempts,
     #[error("particles[{index}].{field} is invalid: {value:?} (must be finite; radius > 0)")]
@@ -111,6 +113,34 @@ impl Region {
                 above("z_max", z_max, "z_min", z_min)
             }
         }
+    }
+
+    /// Fails if a sphere of `max_radius` cannot fit, since the factory would then wait forever
+    /// for its first large particle.
+    fn check_fits(&self, max_radius: f64) -> Result<(), FactoryError> {
+        let too_small = |reason: String| Err(FactoryError::RegionTooSmall { max_radius, reason });
+        match *self {
+            Region::Box { min, max } => {
+                let size = max - min;
+                if size.min() < 2.0 * max_radius {
+                    return too_small(format!("box size {:?} m", [size.x, size.y, size.z]));
+                }
+            }
+            Region::Cylinder {
+                radius,
+                z_min,
+                z_max,
+                ..
+            } => {
+                if radius < max_radius || z_max - z_min < 2.0 * max_radius {
+                    return too_small(format!(
+                        "cylinder radius {radius} m, height {} m",
+                        z_max - z_min
+                    ));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// A uniformly random centre for a sphere of `radius` lying wholly inside, or `None` if
@@ -231,6 +261,7 @@ impl Factory {
                 value: [v.x, v.y, v.z],
             });
         }
+        spec.region.check_fits(spec.size.max_radius())?;
         if spec.max_attempts_per_particle == 0 {
             return Err(FactoryError::NoAttempts);
         }

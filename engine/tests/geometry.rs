@@ -1367,6 +1367,12 @@ fn factory_validation_names_the_field() {
     };
     let e = Factory::new(factory_spec(flat, 1.0, 1.0), SAND_DENSITY).unwrap_err();
     assert!(e.to_string().contains("max.z"), "{e}");
+    let thin = Region::Box {
+        min: Vec3::zeros(),
+        max: Vec3::new(1.0, 1.0, 0.003),
+    };
+    let e = Factory::new(factory_spec(thin, 1.0, 1.0), SAND_DENSITY).unwrap_err();
+    assert!(e.to_string().contains("too small"), "{e}");
     let json = r#"{"region":{"kind":"cylinder","axis_x":0,"axis_y":0,"radius":0.1,"z_min":0,"z_max":0.3},
                    "mass_rate":0.1,"total_mass":1,"size":{"kind":"fixed","radius":0.001}}"#;
     let spec: FactorySpec = serde_json::from_str(json).unwrap();

@@ -382,8 +382,8 @@ impl TriMesh {
             ));
         }
         self.smooth_angle_deg = degrees;
-        // Strictly greater-than comparisons below: with 0° only identical normals would merge,
-        // and those are already the same point or a genuinely separate contact, so keep them.
+        // Contacts merge when the cosine between their normals exceeds this; a cosine never
+        // exceeds 2, so 0° disables merging altogether.
         self.smooth_cos = if degrees == 0.0 {
             2.0
         } else {
@@ -406,7 +406,7 @@ impl TriMesh {
         if out.len() - start < 2 {
             return;
         }
-        out[start..].sort_by(|a, b| {
+        out[start..].sort_unstable_by(|a, b| {
             b.overlap
                 .total_cmp(&a.overlap)
                 .then(a.point.x.total_cmp(&b.point.x))
