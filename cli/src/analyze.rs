@@ -5,7 +5,7 @@ use crate::levels::{levels_for, parse_levels};
 use crate::table::RunTable;
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
-use repose_doe::design::Factor;
+use repose_doe::design::{direction_toward, Factor, PathClamp, PathDirection, SteepestPath};
 use repose_doe::{
     fit_with_options, optimize, AnovaRow, Coefficient, Fit, FitOptions, Goal, Model, ModelKind,
     Objective, OptimumOptions, OptimumResult, Region,
@@ -72,8 +72,48 @@ pub struct AnalyzeArgs {
     /// Backward elimination: drop terms with p above this, keeping the model hierarchical.
     #[arg(long)]
     pub eliminate: Option<f64>,
+    /// Lay out a steepest ascent/descent path with this many steps (linear model; needs
+    /// --levels or --report-levels). Only factors significant at --alpha move; the others stay
+    /// at their centre, as in the paper.
+    #[arg(long)]
+    pub path_steps: Option<usize>,
+    /// Where the path starts: the design centre, or the corner it moves away from.
+    #[arg(long, value_enum, default_value = "centre")]
+    pub path_start: PathStart,
+    /// Force the direction; by default the path heads toward --target from the start point.
+    #[arg(long, value_enum)]
+    pub path_direction: Option<PathDirectionArg>,
+    /// Round the non-base steps to this many decimals (the paper rounds to 2).
+    #[arg(long)]
+    pub path_round: Option<u32>,
+    /// Significance level for choosing the path's factors.
+    #[arg(long, default_value_t = 0.05)]
+    pub alpha: f64,
     #[arg(long, value_enum, default_value = "text")]
     pub format: TextOrJson,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum PathStart {
+    Centre,
+    Corner,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum PathDirectionArg {
+    Ascent,
+    Descent,
+}
+
+/// A steepest ascent/descent path with the model's prediction at every point.
+#[derive(Debug, Serialize)]
+struct PathReport {
+    direction: PathDirection,
+    factors: Vec<String>,
+    base_factor: String,
+    step_natural: Vec<f64>,
+    points: Vec<Vec<f64>>,
+    predicted: Vec<f64>,
 }
 
 /// The JSON document `--format json` prints.
@@ -98,11 +138,19 @@ struct AnalysisJson<'a> {
     eliminated: &'a [repose_doe::EliminationStep],
     #[serde(skip_serializing_if = "Option::is_none")]
     optimum: Option<&'a OptimumResult>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    steepest_path: Option<&'a PathReport>,
 }
 
 pub fn run(args: &AnalyzeArgs) -> Result<()> {
     let table = RunTable::read(&args.input)?;
-    let factors = factor_columns(args, &table)?;
+    print!("{}", analyze_table(&table, args)?);
+    Ok(())
+}
+
+/// The whole analysis of a table already read, as the text to print.
+pub fn analyze_table(table: &RunTable, args: &AnalyzeArgs) -> Result<String> {
+    let factors = factor_columns(args, table)?;
     let response = table.column(&args.response)?;
 
     let levels = args.levels.as_deref().map(parse_levels).transpose()?;
@@ -154,6 +202,11 @@ pub fn run(args: &AnalyzeArgs) -> Result<()> {
         None => None,
     };
 
+    let path = match args.path_steps {
+        Some(steps) => Some(steepest_path(&fit, steps, ranges.as_deref(), args)?),
+        None => None,
+    };
+
     match args.format {
         TextOrJson::Json => {
             let stats = fit.stats();
@@ -176,12 +229,18 @@ pub fn run(args: &AnalyzeArgs) -> Result<()> {
                 diagnostics: fit.diagnostics(),
                 eliminated: fit.elimination(),
                 optimum: optimum.as_ref(),
+                steepest_path: path.as_ref(),
             };
-            println!("{}", serde_json::to_string_pretty(&json)?);
+            Ok(serde_json::to_string_pretty(&json)? + "\n")
         }
-        TextOrJson::Text => print!("{}", render_text(&fit, args, optimum.as_ref())),
+        TextOrJson::Text => {
+            let mut text = render_text(&fit, args, optimum.as_ref());
+            if let Some(path) = &path {
+                text += &render_path(path, fit.response());
+            }
+            Ok(text)
+        }
     }
-    Ok(())
 }
 
 fn factor_columns(args: &AnalyzeArgs, table: &RunTable) -> Result<Vec<String>> {
@@ -244,6 +303,124 @@ fn search_target(
         ..OptimumOptions::default()
     };
     Ok(optimize(&[Objective::new(fit, goal)], &options)?)
+}
+
+/// Montgomery's path from a first-order fit, over the significant factors only.
+fn steepest_path(
+    fit: &Fit,
+    steps: usize,
+    ranges: Option<&[Factor]>,
+    args: &AnalyzeArgs,
+) -> Result<PathReport> {
+    if !matches!(args.model, ModelArg::Linear) {
+        bail!("--path-steps needs a first-order model (--model linear)");
+    }
+    let Some(ranges) = ranges else {
+        bail!("--path-steps needs the natural ranges (--levels or --report-levels)");
+    };
+    if !(args.alpha > 0.0 && args.alpha < 1.0) {
+        bail!("--alpha must be in (0, 1), got {}", args.alpha);
+    }
+    let factors = fit.model().factors();
+    let moving: Vec<usize> = (0..factors.len())
+        .filter(|&i| {
+            fit.term_anova(&factors[i])
+                .and_then(|row| row.p)
+                .is_some_and(|p| p < args.alpha)
+        })
+        .collect();
+    if moving.is_empty() {
+        bail!(
+            "no factor is significant at alpha = {}: there is no direction to follow",
+            args.alpha
+        );
+    }
+    let coefficient = |i: usize| fit.coefficient(&factors[i]).map_or(0.0, |c| c.estimate);
+    let coefficients: Vec<f64> = moving.iter().map(|&i| coefficient(i)).collect();
+    let path_factors: Vec<Factor> = moving.iter().map(|&i| ranges[i].clone()).collect();
+
+    // The coded point of the whole model for coded values of the moving factors.
+    let full_point = |coded_moving: &[f64]| {
+        let mut x = vec![0.0; factors.len()];
+        for (slot, &i) in moving.iter().enumerate() {
+            x[i] = coded_moving[slot];
+        }
+        x
+    };
+    let direction = |start_coded: &[f64]| -> Result<PathDirection> {
+        Ok(match (args.path_direction, args.target) {
+            (Some(PathDirectionArg::Ascent), _) => PathDirection::Ascent,
+            (Some(PathDirectionArg::Descent), _) => PathDirection::Descent,
+            (None, Some(target)) => {
+                direction_toward(target, fit.predict(&full_point(start_coded)))?
+            }
+            (None, None) => bail!("--path-steps needs --target or --path-direction"),
+        })
+    };
+    let centre = vec![0.0; moving.len()];
+    let dir = direction(&centre)?;
+    let mut spec = SteepestPath::spec(coefficients.clone(), path_factors.clone(), dir)
+        .steps(steps)
+        .clamp(PathClamp::FactorRange);
+    if args.path_start == PathStart::Corner {
+        // Start where the path leaves the region: each factor at the end it moves away from.
+        let start = coefficients
+            .iter()
+            .zip(&path_factors)
+            .map(|(b, f)| if b * dir.sign() >= 0.0 { f.low } else { f.high })
+            .collect();
+        spec = spec.start_at(start);
+    }
+    if let Some(decimals) = args.path_round {
+        spec = spec.round_steps_to(decimals);
+    }
+    let path = spec.build()?;
+    let predicted = path
+        .coded_points
+        .iter()
+        .map(|c| fit.predict(&full_point(c)))
+        .collect();
+    Ok(PathReport {
+        direction: dir,
+        base_factor: path.factor_names[path.base_factor].clone(),
+        factors: path.factor_names,
+        step_natural: path.step_natural,
+        points: path.points,
+        predicted,
+    })
+}
+
+fn render_path(path: &PathReport, response: &str) -> String {
+    let mut out = String::new();
+    let name = match path.direction {
+        PathDirection::Ascent => "ascent",
+        PathDirection::Descent => "descent",
+    };
+    let _ = writeln!(
+        out,
+        "\nSteepest {name} path (base factor {}; the other factors stay at their centre)",
+        path.base_factor
+    );
+    let steps: Vec<String> = path
+        .factors
+        .iter()
+        .zip(&path.step_natural)
+        .map(|(f, s)| format!("{f} {s:+.4}"))
+        .collect();
+    let _ = writeln!(out, "Step: {}", steps.join(", "));
+    let mut header = format!("{:>4}", "step");
+    for f in &path.factors {
+        let _ = write!(header, " {f:>9}");
+    }
+    let _ = writeln!(out, "{header} {:>12}", format!("predicted {response}"));
+    for (i, (point, y)) in path.points.iter().zip(&path.predicted).enumerate() {
+        let mut line = format!("{:>4}", i + 1);
+        for v in point {
+            let _ = write!(line, " {v:>9.4}");
+        }
+        let _ = writeln!(out, "{line} {y:>12.3}");
+    }
+    out
 }
 
 fn fmt_p(p: Option<f64>) -> String {
@@ -445,4 +622,75 @@ fn render_text(fit: &Fit, args: &AnalyzeArgs, optimum: Option<&OptimumResult>) -
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn args(model: ModelArg, target: Option<f64>) -> AnalyzeArgs {
+        AnalyzeArgs {
+            input: PathBuf::from("unused.csv"),
+            response: "y".into(),
+            model,
+            factors: None,
+            levels: None,
+            report_levels: None,
+            target,
+            sphere_radius: None,
+            eliminate: None,
+            path_steps: None,
+            path_start: PathStart::Centre,
+            path_direction: None,
+            path_round: None,
+            alpha: 0.05,
+            format: TextOrJson::Json,
+        }
+    }
+
+    /// A cell as a lab's hand-edited spreadsheet might hold it.
+    fn cell() -> impl Strategy<Value = String> {
+        prop_oneof![
+            40 => (-3i32..=3).prop_map(|v| v.to_string()),
+            20 => (-1e3f64..1e3).prop_map(|v| v.to_string()),
+            1 => Just("NaN".to_owned()),
+            1 => Just("inf".to_owned()),
+            1 => Just(String::new()),
+            1 => Just("n/a".to_owned()),
+            1 => Just("1e400".to_owned()),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        /// Whatever the table holds, the analysis returns Ok or an error; it never panics.
+        #[test]
+        fn random_tables_never_panic(
+            columns in 1usize..5,
+            cells in proptest::collection::vec(proptest::collection::vec(cell(), 5), 0..14),
+            model in prop_oneof![Just(ModelArg::Linear), Just(ModelArg::TwoFi), Just(ModelArg::Quadratic)],
+            target in proptest::option::of(-50.0f64..50.0),
+        ) {
+            let names = ["A", "B", "C", "D", "y"];
+            let mut csv = names[5 - columns..].join(",");
+            csv.push('\n');
+            for row in &cells {
+                csv += &row[5 - columns..].join(",");
+                csv.push('\n');
+            }
+            if let Ok(table) = RunTable::parse(csv.as_bytes()) {
+                let _ = analyze_table(&table, &args(model, target));
+            }
+        }
+
+        /// Random bytes as a CSV file: parsing fails cleanly or yields a table.
+        #[test]
+        fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
+            if let Ok(table) = RunTable::parse(&bytes) {
+                let _ = analyze_table(&table, &args(ModelArg::Linear, Some(1.0)));
+            }
+        }
+    }
 }

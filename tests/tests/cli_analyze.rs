@@ -263,3 +263,84 @@ fn design_rejects_bad_arguments_with_status_2() {
         assert!(!stderr(&out).contains("panicked"));
     }
 }
+
+#[test]
+fn steepest_ascent_path_reproduces_table_5() {
+    let pb = paper("plackett_burman_table3.csv");
+    let doc = json(&[
+        "analyze",
+        "--input",
+        pb.to_str().unwrap(),
+        "--response",
+        "angle_deg",
+        "--model",
+        "linear",
+        "--report-levels",
+        "N1=0.15:0.75,N2=0.44:0.68,N3=0.01:0.40,N4=0.2:0.6,N5=0.3:0.7,N6=0.1:0.4",
+        "--path-steps",
+        "4",
+        "--path-start",
+        "corner",
+        "--path-direction",
+        "ascent",
+        "--path-round",
+        "2",
+        "--format",
+        "json",
+    ]);
+    let path = &doc["steepest_path"];
+    assert_eq!(path["factors"], serde_json::json!(["N2", "N3", "N5"]));
+    assert_eq!(path["base_factor"], "N3");
+    for (actual, expected) in path["step_natural"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip([0.04, 0.195, 0.05])
+    {
+        close(actual, expected, 1e-9);
+    }
+    let table5 = std::fs::read_to_string(paper("steepest_ascent_table5.csv")).unwrap();
+    for (line, point) in table5
+        .lines()
+        .skip(1)
+        .zip(path["points"].as_array().unwrap())
+    {
+        let cells: Vec<f64> = line.split(',').map(|c| c.parse().unwrap()).collect();
+        for (k, expected) in cells[1..4].iter().enumerate() {
+            close(&point[k], *expected, 1e-9);
+        }
+    }
+}
+
+/// The README shows what the main command prints; keep the two identical.
+#[test]
+fn readme_shows_what_the_main_command_prints() {
+    let readme = std::fs::read_to_string(common::workspace_root().join("README.md")).unwrap();
+    let section = readme
+        .split("## What the first command prints")
+        .nth(1)
+        .expect("README has the section");
+    let block = section
+        .split("```text\n")
+        .nth(1)
+        .and_then(|rest| rest.split("```").next())
+        .expect("README has the text block");
+    let bbd = paper("box_behnken_table6.csv");
+    let out = repose(&[
+        "analyze",
+        "--input",
+        bbd.to_str().unwrap(),
+        "--response",
+        "angle_deg",
+        "--model",
+        "quadratic",
+        "--target",
+        "34.85",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(
+        stdout(&out),
+        block,
+        "README.md is out of date: paste the new output"
+    );
+}
