@@ -63,7 +63,7 @@ pub struct ContactForce {
 ///   first rotated into the current tangent plane (projected, then rescaled to keep its
 ///   magnitude, so a rotating contact neither loses nor gains stored elastic energy), then
 ///   incremented by vt Δt.
-#[inline]
+#[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn hertz_mindlin(
     constants: &PairConstants,
@@ -78,13 +78,15 @@ pub fn hertz_mindlin(
     let sqrt_r_delta = (r_star * overlap).sqrt();
     let sn = 2.0 * constants.e_star * sqrt_r_delta;
     let st = 8.0 * constants.g_star * sqrt_r_delta;
-    // -2 sqrt(5/6) β >= 0 since β <= 0.
-    let damping = -DAMPING_FACTOR * constants.beta;
+    // Dashpot coefficients 2 sqrt(5/6) (-β) sqrt(S m*); the tangential one is the normal one
+    // times sqrt(St/Sn) = sqrt(4 G*/E*), a material-pair constant (saves a square root).
+    let normal_dashpot = -DAMPING_FACTOR * constants.beta * (sn * m_star).sqrt();
+    let tangential_dashpot = normal_dashpot * constants.tangential_to_normal_damping;
 
     // Normal: 4/3 E* sqrt(R*) δ^1.5 = (2/3) Sn δ.
     let vn = relative_velocity.dot(&normal);
     let fn_elastic = (2.0 / 3.0) * sn * overlap;
-    let fn_damping = -damping * (sn * m_star).sqrt() * vn;
+    let fn_damping = -normal_dashpot * vn;
     // No attraction: a separating contact with strong damping would otherwise pull.
     let normal_force = (fn_elastic + fn_damping).max(0.0);
 
@@ -101,7 +103,7 @@ pub fn hertz_mindlin(
         };
     }
     *spring += vt * dt;
-    let mut ft = -*spring * st - vt * (damping * (st * m_star).sqrt());
+    let mut ft = -*spring * st - vt * tangential_dashpot;
 
     // Coulomb cap. We use the TOTAL normal force (elastic + damping, clamped at 0), not the
     // elastic part alone: friction is bounded by the load the contact actually transmits. With

@@ -300,6 +300,8 @@ pub struct PairConstants {
     pub static_friction: f64,
     pub rolling_friction: f64,
     pub restitution: f64,
+    /// sqrt(St / Sn) = sqrt(4 G* / E*): tangential over normal dashpot coefficient.
+    pub tangential_to_normal_damping: f64,
 }
 
 impl PairConstants {
@@ -316,6 +318,7 @@ impl PairConstants {
             static_friction: coefficients.static_friction,
             rolling_friction: coefficients.rolling_friction,
             restitution: coefficients.restitution,
+            tangential_to_normal_damping: (4.0 * g_star / e_star).sqrt(),
         }
     }
 }

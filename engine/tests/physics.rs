@@ -683,7 +683,23 @@ fn results_are_bit_identical_across_thread_counts_and_runs() {
     assert_eq!(two, again);
 }
 
-/// Throughput figures (run explicitly: `cargo test -p repose-engine --test physics
+/// CPU time (user + system) of this process so far, s, from /proc (Linux; 0 elsewhere). On a
+/// loaded machine wall-clock throughput is meaningless; CPU time per thread is not.
+fn process_cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after_name = stat.rsplit(')').next().unwrap_or("");
+    let fields: Vec<&str> = after_name.split_whitespace().collect();
+    let ticks = |k: usize| {
+        fields
+            .get(k)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    // Fields 14 and 15 of stat (utime, stime) are at 11 and 12 after the name; 100 ticks/s.
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// Throughput figures (run explicitly: `cargo test --release -p repose-engine --test physics
 /// bench_throughput -- --ignored --nocapture`; BENCH_PARTICLES, BENCH_STEPS override).
 #[test]
 #[ignore]
@@ -699,15 +715,138 @@ fn bench_throughput() {
     let steps = env("BENCH_STEPS", 2000);
     let bed = settled_bed(particles, 1).unwrap();
     for threads in [1, 2] {
+        let cpu = process_cpu_seconds();
         let r = time_steps(&bed, threads, steps);
+        let cpu = process_cpu_seconds() - cpu;
         println!("{r:?}");
         println!(
-            "{} particles, {threads} threads: {:.2} M particle-steps/s, {:.0} B/particle, \
-             {:.2} contacts/particle",
+            "{} particles, {threads} threads: {:.2} M particle-steps/s wall, {:.2} M per \
+             CPU-second, {:.0} B/particle, {:.2} contacts/particle, {:.2} pairs/particle",
             r.particles,
             r.particle_steps_per_second / 1e6,
+            r.particles as f64 * (steps + 20) as f64 / cpu / 1e6,
             r.bytes_per_particle,
-            r.contacts_per_particle
+            r.contacts_per_particle,
+            r.pairs_per_particle
         );
     }
+}
+
+#[test]
+fn material_validation_names_the_field_and_paper_values_are_expressible() {
+    let mut set = MaterialSet::paper(
+        Interaction {
+            restitution: 0.15,
+            static_friction: 0.68,
+            rolling_friction: 0.40,
+        },
+        Interaction {
+            restitution: 0.6,
+            static_friction: 0.3,
+            rolling_friction: 0.1,
+        },
+    );
+    let json = serde_json::to_string(&set).unwrap();
+    let back: MaterialSet = serde_json::from_str(&json).unwrap();
+    assert_eq!(back, set);
+    let table = set.build().unwrap();
+    let soil = table.id("soil").unwrap();
+    assert_eq!(table.material(soil).density, 2664.0);
+    set.materials[0].poisson = 0.6;
+    let message = set.build().unwrap_err().to_string();
+    assert!(
+        message.starts_with("materials.soil.poisson must be in (0, 0.5)"),
+        "{message}"
+    );
+    set.materials[0].poisson = 0.36;
+    set.interactions[1].coefficients.restitution = 0.0;
+    let message = set.build().unwrap_err().to_string();
+    assert!(
+        message.starts_with("interactions.soil-steel.restitution must be in (0, 1]"),
+        "{message}"
+    );
+    set.interactions.pop();
+    set.interactions[1].coefficients.restitution = 0.5;
+    let message = set.build().unwrap_err().to_string();
+    assert!(message.contains("no interaction given for the pair (steel, steel)"));
+}
+
+#[test]
+fn time_step_rules() {
+    let soil = Material::paper_soil();
+    // Rayleigh time of a 1 mm soil grain: π R sqrt(ρ/G) / (0.1631 ν + 0.8766).
+    let g = soil.youngs_modulus / (2.0 * 1.36);
+    let expected = std::f64::consts::PI * 1e-3 * (2664.0 / g).sqrt() / (0.1631 * 0.36 + 0.8766);
+    let t_r = repose_engine::material::rayleigh_time(1e-3, &soil);
+    assert!((t_r / expected - 1.0).abs() < 1e-12);
+    // 20 % of T_R resolves a 1 m/s impact; a 10x larger step at 20 m/s does not.
+    assert!(repose_engine::material::check_time_step(0.2 * t_r, 1e-3, &soil, 1.0).is_none());
+    let warning =
+        repose_engine::material::check_time_step(2.0 * t_r, 1e-3, &soil, 20.0).expect("warns");
+    assert!(warning.steps_per_contact < 10.0);
+    assert!(warning.to_string().contains("20 m/s"));
+}
+
+#[test]
+fn particles_leaving_the_domain_are_removed_and_ids_stay_stable() {
+    let materials = table(ball_material(), wall_material(), 0.5, 0.5, 0.0);
+    let domain = Domain::closed(Vec3::repeat(-0.1), Vec3::repeat(0.1));
+    let mut world = World::new(materials, WorldConfig::new(1e-5, domain)).unwrap();
+    for k in 0..5 {
+        let x = -0.08 + 0.04 * k as f64;
+        let velocity = if k % 2 == 1 {
+            Vec3::new(0.0, 0.0, -5.0)
+        } else {
+            Vec3::zeros()
+        };
+        world
+            .add_particle(ParticleSpec {
+                velocity,
+                ..ParticleSpec::at_rest(Vec3::new(x, 0.0, 0.0), RADIUS, BALL)
+            })
+            .unwrap();
+    }
+    world.run_until(0.03);
+    assert_eq!(world.removed_count(), 2);
+    let mut ids = world.particles().id.clone();
+    ids.sort_unstable();
+    assert_eq!(ids, vec![0, 2, 4]);
+    for id in [0u64, 2, 4] {
+        let k = world.particles().index_of(id).unwrap();
+        let x = -0.08 + 0.04 * id as f64;
+        assert!((world.particles().position[k].x - x).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn geometry_force_and_torque_about_its_reference_point() {
+    // A sphere resting on a plane placed 0.1 m to the side of the plane's reference point: the
+    // plane carries the weight, and the torque about the reference point is r × F.
+    let g = 9.81;
+    let materials = table(ball_material(), wall_material(), 0.3, 0.5, 0.0);
+    let mut world = World::new(
+        materials,
+        config(
+            rayleigh_dt(0.2),
+            Vec3::new(0.0, 0.0, -g),
+            Integrator::SymplecticEuler,
+        ),
+    )
+    .unwrap();
+    let id = add_plane(&mut world, 0.2, 4);
+    let x = 0.1;
+    world
+        .add_particle(ParticleSpec::at_rest(
+            Vec3::new(x, 0.0, RADIUS - resting_overlap(RADIUS, g)),
+            RADIUS,
+            BALL,
+        ))
+        .unwrap();
+    world.run_until(0.05);
+    let last = *world.geometry_series(id).last().unwrap();
+    let weight = mass(RADIUS) * g;
+    let expected_torque = Vec3::new(x, 0.0, 0.0).cross(&Vec3::new(0.0, 0.0, -weight));
+    println!("plane load {:?}, torque {:?}", last.force, last.torque);
+    assert!((last.force - Vec3::new(0.0, 0.0, -weight)).norm() < 1e-6 * weight);
+    assert!((last.torque - expected_torque).norm() < 1e-6 * weight * x);
 }
