@@ -1460,3 +1460,40 @@ fn broad_phase_query_cost() {
         );
     }
 }
+
+#[test]
+fn fine_fan_disc_builds_a_bounded_grid_and_answers_correctly() {
+    // 20 000 long thin triangles around one centre: their bounding boxes overlap heavily, the
+    // case where a naive grid would list every triangle in thousands of cells.
+    let n = 20_000u32;
+    let mut vertices = vec![Vec3::zeros()];
+    vertices.extend((0..n).map(|k| {
+        let phi = TAU * k as f64 / n as f64;
+        Vec3::new(0.1 * phi.cos(), 0.1 * phi.sin(), 0.0)
+    }));
+    let triangles = (0..n).map(|k| [0, 1 + k, 1 + (k + 1) % n]).collect();
+    let start = std::time::Instant::now();
+    let disc = TriMesh::new(vertices, triangles).unwrap();
+    let build = start.elapsed().as_secs_f64();
+    assert!(build < 5.0, "grid build took {build} s");
+    assert!(disc.grid_cell_count() <= 4 * n as usize);
+    // At the hub exactly, just off it (the hub vertex is then rejected by every triangle),
+    // in the middle and at the rim.
+    let start = std::time::Instant::now();
+    for (x, y) in [
+        (0.0, 0.0),
+        (1e-4, 2e-5),
+        (0.05, 0.01),
+        (-0.07, 0.06),
+        (0.0999, 0.0),
+    ] {
+        let center = Vec3::new(x, y, 0.001);
+        let fast = contacts(&disc, center, 0.002);
+        let mut slow = Vec::new();
+        disc.sphere_contacts_brute_force(center, 0.002, &mut slow);
+        assert_eq!(fast.len(), 1, "at ({x}, {y}): {fast:?}");
+        assert_same_contacts(fast, slow, "disc");
+    }
+    let queries = start.elapsed().as_secs_f64();
+    assert!(queries < 2.0, "queries took {queries} s");
+}

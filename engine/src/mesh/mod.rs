@@ -21,6 +21,7 @@ use crate::math::{Pose, Vec3};
 use closest::{closest_point_on_triangle, Feature};
 use grid::Grid;
 
+pub use generators::{AugerSpec, FunnelSpec, FunnelTop, MeshSpec};
 pub use stl::StlError;
 
 /// Why a mesh (or a generator's parameters) was rejected.
@@ -342,12 +343,13 @@ impl TriMesh {
             return;
         }
         let start = out.len();
+        let mut rejected = RejectedFeatures::default();
         let reach = Vec3::repeat(radius);
         let (lo, hi) = (center - reach, center + reach);
         self.grid.for_each_candidate(lo, hi, |t| {
             let (tlo, thi) = self.triangle_bounds[t as usize];
             if boxes_overlap(lo, hi, tlo, thi) {
-                self.add_triangle_contact(t, center, radius, start, out);
+                self.add_triangle_contact(t, center, radius, start, &mut rejected, out);
             }
         });
         self.merge_smooth(start, out);
@@ -365,8 +367,9 @@ impl TriMesh {
             return;
         }
         let start = out.len();
+        let mut rejected = RejectedFeatures::default();
         for t in 0..self.triangles.len() as u32 {
-            self.add_triangle_contact(t, center, radius, start, out);
+            self.add_triangle_contact(t, center, radius, start, &mut rejected, out);
         }
         self.merge_smooth(start, out);
     }
@@ -437,6 +440,7 @@ impl TriMesh {
         center: Vec3,
         radius: f64,
         start: usize,
+        rejected: &mut RejectedFeatures,
         out: &mut Vec<MeshContact>,
     ) {
         let [a, b, c] = self.corners(t as usize);
@@ -446,14 +450,25 @@ impl TriMesh {
         if distance_squared.is_nan() || distance_squared >= radius * radius {
             return;
         }
-        if feature != Feature::Face && !self.is_local_minimum(t, feature, point, center) {
-            return;
-        }
+        // The cheap duplicate test first: at a vertex shared by k triangles each of them finds
+        // the same point, and running the O(k) local-minimum test for each would cost O(k²).
         if out[start..]
             .iter()
             .any(|existing| (existing.point - point).norm() <= self.tolerance)
         {
             return;
+        }
+        if feature != Feature::Face {
+            // Every triangle around a rejected edge or vertex finds the same point there, and
+            // the answer is the same for all of them: remember it rather than recompute.
+            let key = self.feature_key(t, feature);
+            if rejected.contains(key) {
+                return;
+            }
+            if !self.is_local_minimum(t, feature, point, center) {
+                rejected.insert(key);
+                return;
+            }
         }
         let distance = distance_squared.sqrt();
         let face_normal = self.normals[t as usize];
@@ -476,6 +491,19 @@ impl TriMesh {
             overlap: radius - distance,
             triangle: t,
         });
+    }
+
+    /// Welded vertex ids identifying an edge (sorted pair) or a vertex (`(v, u32::MAX)`).
+    fn feature_key(&self, t: u32, feature: Feature) -> (u32, u32) {
+        let welded = self.welded_triangles[t as usize];
+        match feature {
+            Feature::Face => (u32::MAX, t),
+            Feature::Edge(k) => {
+                let (u, w) = (welded[k as usize], welded[(k as usize + 1) % 3]);
+                (u.min(w), u.max(w))
+            }
+            Feature::Vertex(k) => (welded[k as usize], u32::MAX),
+        }
     }
 
     /// Whether `point` (on an edge or at a vertex of triangle `t`) is also the closest point of
@@ -504,6 +532,28 @@ impl TriMesh {
             let (q, _) = closest_point_on_triangle(center, a, b, c);
             (q - point).norm() <= self.tolerance
         })
+    }
+}
+
+/// A few edges/vertices already found not to be local minima in the current query, so a vertex
+/// shared by k triangles (a fan closing a disc, a cone tip) costs O(k) per query, not O(k²).
+/// Fixed size and overwritten round-robin: no allocation in the contact query.
+#[derive(Debug, Default)]
+struct RejectedFeatures {
+    keys: [(u32, u32); 8],
+    len: usize,
+    next: usize,
+}
+
+impl RejectedFeatures {
+    fn contains(&self, key: (u32, u32)) -> bool {
+        self.keys[..self.len].contains(&key)
+    }
+
+    fn insert(&mut self, key: (u32, u32)) {
+        self.keys[self.next] = key;
+        self.next = (self.next + 1) % self.keys.len();
+        self.len = (self.len + 1).min(self.keys.len());
     }
 }
 
