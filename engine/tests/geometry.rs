@@ -399,6 +399,25 @@ proptest! {
     }
 
     #[test]
+    fn facetted_tube_wall_gives_exactly_one_contact_inside_and_outside(
+        phi in 0.0..TAU,
+        gap in -0.004..0.004f64,
+        z in 0.02..0.18f64,
+        radius in 0.0046..0.005f64,
+    ) {
+        // 32 facets (11.25° creases), facet planes at 0.1·cos(π/32) from the axis; the sphere
+        // centre is within ±4 mm of the circle (at most 4.5 mm from the facets), inside (gap < 0) or outside.
+        thread_local! {
+            static TUBE: TriMesh = cylinder(0.1, 0.2, 32, false).unwrap();
+        }
+        let r_centre = 0.1 + gap;
+        let center = Vec3::new(r_centre * phi.cos(), r_centre * phi.sin(), z);
+        let c = TUBE.with(|tube| contacts(tube, center, radius));
+        prop_assert_eq!(c.len(), 1, "{:?}", c);
+        prop_assert!(c[0].normal.z.abs() < 1e-9);
+    }
+
+    #[test]
     fn flat_plane_always_gives_exactly_one_contact(
         x in -0.45..0.45f64, y in -0.45..0.45f64, h in -0.0099..0.0099f64,
     ) {
