@@ -1,3 +1,5 @@
 //! Virtual experiments run on the DEM engine, and the measurements that turn their final
 //! particle states into numbers (angle of repose, hole metrics). No I/O: pictures are
 //! returned as SVG text for the caller to write.
+
+pub mod aor;
