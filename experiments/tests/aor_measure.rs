@@ -607,3 +607,54 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn grains_in_flight_are_not_a_pile() {
+    // A run stopped before the grains settled: a cloud above the plate, none touching the base.
+    let mut rng = ChaCha8Rng::seed_from_u64(43);
+    let positions: Vec<[f64; 3]> = (0..800)
+        .map(|_| {
+            [
+                rng.gen_range(-0.02..0.02),
+                rng.gen_range(-0.02..0.02),
+                rng.gen_range(0.05..0.09),
+            ]
+        })
+        .collect();
+    let radii = vec![MM; positions.len()];
+    let err = measure_angle_of_repose(&positions, &radii, &MeasureSettings::default()).unwrap_err();
+    assert!(matches!(err, MeasureError::TooFewParticles { .. }), "{err}");
+}
+
+/// Accuracy over 20 smaller random loose piles (base radius 17.5 grain diameters, 25°-45°).
+/// Measured when written: mean half-plane angle within 1.03° of the cone for every pile (typical
+/// bias -0.3°: the loose synthetic surface is slightly rounder near the apex), each side-projection
+/// angle within 1.46°. The bounds below leave a little room above those. Prints the table (run with
+/// `--nocapture` to see it).
+#[test]
+fn accuracy_over_seeds() {
+    let mut worst_mean: f64 = 0.0;
+    let mut worst_side: f64 = 0.0;
+    for angle in [25.0, 30.0, 35.0, 40.0, 45.0] {
+        for seed in 100..104 {
+            let cone = Cone::symmetric(angle, 35.0 * MM);
+            let pile = random_loose_pile(&cone, 1.0 * MM, 1.0 * MM, 300_000, seed);
+            let m = measure(&pile, &MeasureSettings::default());
+            let side = [m.left_deg, m.right_deg]
+                .iter()
+                .map(|a| (a - angle).abs())
+                .fold(0.0, f64::max);
+            eprintln!(
+                "accuracy: true {angle:.1}° seed {seed}: half-planes {:.2}° (sd {:.2}), x-z {:.2}/{:.2}°",
+                m.angle_deg, m.std_dev_deg, m.left_deg, m.right_deg
+            );
+            worst_mean = worst_mean.max((m.angle_deg - angle).abs());
+            worst_side = worst_side.max(side);
+        }
+    }
+    eprintln!(
+        "accuracy: worst |mean - true| {worst_mean:.2}°, worst |side - true| {worst_side:.2}°"
+    );
+    assert!(worst_mean <= 1.25, "worst mean error {worst_mean:.2}°");
+    assert!(worst_side <= 1.75, "worst side error {worst_side:.2}°");
+}

@@ -25,16 +25,27 @@
 //!   the pile is the largest cluster that rests on the base (or, when the funnel axis is given,
 //!   the cluster resting on the base nearest to it). A grain that bounced away, or one still in
 //!   flight above the heap, is its own cluster and is ignored; every grain of the pile is
-//!   supported down to the base through a chain of contacts.
+//!   supported down to the base through a chain of contacts. (A flying grain closer than the gap
+//!   to the surface is counted as resting on it; at half a grain that changes no slope.)
+//! * **Pile axis.** The given funnel axis, else the centroid of the grains in the lower third of
+//!   the pile (the footprint centre; the lower part is wide and well populated, the apex is not).
+//!   Each half-plane is a slab of half-width `slab_half_width_diameters` that starts half a slab
+//!   behind the axis, so the axis column is seen whole by every direction.
 //! * **Surface height of a column** (a radial bin of a half-plane, or one abscissa of the
 //!   silhouette) is the top (`z + radius`) of the highest grain of the pile in it. A half-plane bin
 //!   is a surface point only if it holds at least `min_particles_per_bin` grains, so a single grain
 //!   that rolled out beyond the toe does not extend the profile.
 //! * **Radial contiguity.** A profile is followed outward from the axis and ends at the toe: after
 //!   more than `max_missing_bins` consecutive bins without a valid surface point nothing further
-//!   out is used.
-//! * **Pile height** is the highest supported surface point found in any half-plane profile (the
-//!   maximum of `h` near the axis, robust because unsupported flying grains are already excluded).
+//!   out is used. The silhouette is followed left and right from its highest point the same way.
+//! * **Robust line fits.** Within the band, a least-squares line is fitted, then points further
+//!   from it than `outlier_rejection_sigmas` robust standard deviations (and more than half a
+//!   grain) are dropped and the line refitted, up to three times. A loose surface has holes (a bin
+//!   whose highest grain sits a grain or two below its neighbours); one such hole in a dozen bins
+//!   would otherwise tilt a direction by a few degrees. `FlankFit::rejected` says how many went.
+//! * **Pile height** is the top of the highest grain found in any half-plane profile above the
+//!   base (the maximum of `h` near the axis; robust because flying grains are already excluded).
+//!   The side projection has its own apex and height, used for its own band.
 //! * **Base diameter** is twice the mean, over the `K` directions, of the radius at which the
 //!   fitted flank line reaches the base plane (extrapolating the fit, rather than looking for the
 //!   outermost grain, so that a single grain that rolled out does not change it).
