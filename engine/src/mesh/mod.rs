@@ -338,6 +338,26 @@ impl TriMesh {
     ///
     /// Pushes into `out` (does not clear it). A non-finite centre or a radius that is not
     /// positive yields no contacts.
+    ///
+    /// ```
+    /// use repose_engine::math::{Pose, Vec3};
+    /// use repose_engine::mesh::generators::plane;
+    ///
+    /// // A floor 1 m × 1 m, lifted to z = 0.5 m in the world.
+    /// let floor = plane(1.0, 1.0, 4, 4).unwrap();
+    /// let pose = Pose::translation(0.0, 0.0, 0.5);
+    /// let (centre, radius) = (Vec3::new(0.1, 0.2, 0.509), 0.01);
+    ///
+    /// let body_centre = pose.inverse_transform_point(&centre.into()).coords;
+    /// let mut contacts = Vec::new();
+    /// floor.sphere_contacts(body_centre, radius, &mut contacts);
+    /// assert_eq!(contacts.len(), 1);
+    /// let world_point = pose.transform_point(&contacts[0].point.into()).coords;
+    /// let world_normal = pose.rotation * contacts[0].normal;
+    /// assert!((world_point - Vec3::new(0.1, 0.2, 0.5)).norm() < 1e-12);
+    /// assert!((world_normal - Vec3::z()).norm() < 1e-12);
+    /// assert!((contacts[0].overlap - 0.001).abs() < 1e-12);
+    /// ```
     pub fn sphere_contacts(&self, center: Vec3, radius: f64, out: &mut Vec<MeshContact>) {
         if !Self::query_is_valid(center, radius) {
             return;
