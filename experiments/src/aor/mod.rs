@@ -3,6 +3,36 @@
 //!
 //! The input is plain slices (centres in metres with z up, radii in metres) so that this module
 //! does not depend on the engine's particle types.
+//!
+//! ```
+//! use repose_experiments::aor::{measure_angle_of_repose, side_view_svg, MeasureSettings, PictureOptions};
+//!
+//! // A 35° cone of 1 mm spheres standing on z = 0: stacked columns on a 2 mm square grid, each
+//! // column lifted by a different fraction of a grain so that the surface is not terraced.
+//! let (radius, base_radius) = (1e-3, 0.03);
+//! let (tan, cos) = (35f64.to_radians().tan(), 35f64.to_radians().cos());
+//! let mut positions = Vec::new();
+//! for i in -16i32..=16 {
+//!     for j in -16i32..=16 {
+//!         let lift = f64::from((i * 7 + j * 13).rem_euclid(5)) * 0.4e-3;
+//!         for k in 0..16 {
+//!             let p = [f64::from(i) * 2e-3, f64::from(j) * 2e-3, radius + lift + f64::from(k) * 2e-3];
+//!             let surface = (base_radius - p[0].hypot(p[1])) * tan;
+//!             if p[2] <= surface - radius / cos {
+//!                 positions.push(p);
+//!             }
+//!         }
+//!     }
+//! }
+//! let radii = vec![radius; positions.len()];
+//!
+//! let result = measure_angle_of_repose(&positions, &radii, &MeasureSettings::default())?;
+//! assert!((result.angle_deg - 35.0).abs() < 1.5);
+//! assert!((result.projection_mean_deg - 35.0).abs() < 2.0);
+//! let svg: String = side_view_svg(&result, &positions, &radii, &PictureOptions::default());
+//! assert!(svg.starts_with("<?xml"));
+//! # Ok::<(), repose_experiments::aor::MeasureError>(())
+//! ```
 
 mod measure;
 mod picture;
