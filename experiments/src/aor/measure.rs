@@ -787,7 +787,7 @@ fn half_plane_profile(
     while start < members.len() {
         let bin = members[start].0;
         let end = start + members[start..].partition_point(|m| m.0 == bin);
-        let next_expected = last_good.map_or(0, |b| b + 1);
+        let next_expected = last_good.map_or(0, |b| b.saturating_add(1));
         if bin.saturating_sub(next_expected) > settings.max_missing_bins {
             break; // reached the toe: what lies further out is not this pile's surface
         }
