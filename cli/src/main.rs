@@ -4,6 +4,7 @@
 mod analyze;
 mod design_cmd;
 mod levels;
+mod sim;
 mod table;
 
 use clap::{Parser, Subcommand};
@@ -26,6 +27,8 @@ enum Command {
     Design(design_cmd::DesignArgs),
     /// Fit a response-surface model to a run table and print the ANOVA (like Design-Expert).
     Analyze(analyze::AnalyzeArgs),
+    /// Run a DEM scene file (TOML or JSON) and write final.csv, geometry forces, snapshots.
+    Sim(sim::SimArgs),
 }
 
 fn main() -> ExitCode {
@@ -33,6 +36,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Design(args) => design_cmd::run(&args),
         Command::Analyze(args) => analyze::run(&args),
+        Command::Sim(args) => sim::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

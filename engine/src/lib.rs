@@ -12,3 +12,5 @@ pub mod mesh;
 pub mod neighbor;
 pub mod particles;
 pub mod world;
+pub mod output;
+pub mod scene;
