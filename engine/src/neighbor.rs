@@ -175,19 +175,39 @@ pub(crate) struct CellGrid {
 }
 
 impl CellGrid {
+    /// Cells at least `cell_size` wide. Periodic axes are tiled exactly by the cells (the
+    /// period must be a whole number of cells); other axes span only the particles' extent, so
+    /// a few particles in a huge domain do not allocate a huge grid. The cell count is also
+    /// capped at a few per particle by widening the cells (still correct, just more pairs
+    /// tested).
     pub fn build(domain: &Domain, cell_size: f64, positions: &[Vec3]) -> CellGrid {
-        let extent = domain.max - domain.min;
+        let periodic = [domain.periodic_x, domain.periodic_y, false];
+        let (mut lo, mut hi) = (domain.min, domain.max);
+        if !positions.is_empty() {
+            let (plo, phi) = positions.iter().fold(
+                (Vec3::repeat(f64::INFINITY), Vec3::repeat(f64::NEG_INFINITY)),
+                |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+            );
+            for a in 0..3 {
+                if !periodic[a] && plo[a].is_finite() && phi[a].is_finite() {
+                    lo[a] = plo[a];
+                    hi[a] = phi[a].max(plo[a] + cell_size);
+                }
+            }
+        }
+        let extent = hi - lo;
+        let max_cells = (4 * positions.len()).max(4096) as f64;
+        let volume = extent.x * extent.y * extent.z;
+        let size = cell_size.max((volume / max_cells).cbrt());
         let mut dims = [1usize; 3];
         let mut inverse_size = Vec3::zeros();
         for a in 0..3 {
-            // Cap the cell count so that a tiny cutoff in a huge box cannot exhaust memory.
-            let n = ((extent[a] / cell_size).floor() as usize).clamp(1, 1024);
+            let n = ((extent[a] / size).floor() as usize).clamp(1, 1 << 20);
             dims[a] = n;
             inverse_size[a] = n as f64 / extent[a];
         }
-        let periodic = [domain.periodic_x, domain.periodic_y, false];
         let mut grid = CellGrid {
-            origin: domain.min,
+            origin: lo,
             inverse_size,
             dims,
             periodic,

@@ -850,3 +850,47 @@ fn geometry_force_and_torque_about_its_reference_point() {
     assert!((last.force - Vec3::new(0.0, 0.0, -weight)).norm() < 1e-6 * weight);
     assert!((last.torque - expected_torque).norm() < 1e-6 * weight * x);
 }
+
+#[test]
+fn a_factory_fills_particles_without_overlap_and_they_settle_in_a_box() {
+    use repose_engine::distribution::{SizeDistribution, SizeDistributionSpec};
+    use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
+    let materials = table(ball_material(), wall_material(), 0.3, 0.5, 0.1);
+    let dt = materials.rayleigh_time_step(BALL, 0.002, 0.2);
+    let mut world = World::new(
+        materials,
+        config(dt, Vec3::new(0.0, 0.0, -9.81), Integrator::SymplecticEuler),
+    )
+    .unwrap();
+    add_plane(&mut world, 0.05, 4);
+    let size = SizeDistribution::new(SizeDistributionSpec::Uniform {
+        min_radius: 0.002,
+        max_radius: 0.003,
+    })
+    .unwrap();
+    let spec = FactorySpec {
+        region: Region::Box {
+            min: Vec3::new(-0.02, -0.02, 0.01),
+            max: Vec3::new(0.02, 0.02, 0.05),
+        },
+        mass_rate: 0.5,
+        total_mass: 0.02,
+        start_time: 0.0,
+        velocity: Vec3::zeros(),
+        size,
+        max_attempts_per_particle: 100,
+    };
+    let factory = Factory::new(spec, 2500.0).unwrap();
+    world
+        .add_source(ParticleSource::Factory(factory), BALL)
+        .unwrap();
+    world.run_until(0.1);
+    let p = world.particles();
+    let inserted: f64 = p.mass.iter().sum();
+    println!("{} particles, {inserted:.4} kg inserted", p.len());
+    assert!(p.len() > 20);
+    assert!((inserted - 0.02).abs() < 0.002);
+    // No particle fell through the plane (nor was removed).
+    assert_eq!(world.removed_count(), 0);
+    assert!(p.position.iter().all(|x| x.z > 0.0));
+}
