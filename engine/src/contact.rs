@@ -92,16 +92,7 @@ pub fn hertz_mindlin(
 
     // Tangential spring, kept in the tangent plane.
     let vt = relative_velocity - normal * vn;
-    let old_len2 = spring.norm_squared();
-    if old_len2 > 0.0 {
-        let projected = *spring - normal * normal.dot(spring);
-        let new_len2 = projected.norm_squared();
-        *spring = if new_len2 > 0.0 {
-            projected * (old_len2 / new_len2).sqrt()
-        } else {
-            Vec3::zeros()
-        };
-    }
+    rotate_into_tangent_plane(spring, normal);
     *spring += vt * dt;
     let mut ft = -*spring * st - vt * tangential_dashpot;
 
@@ -117,13 +108,38 @@ pub fn hertz_mindlin(
         }
         // Sliding: the spring is reset so that its elastic force alone equals the cap (the
         // damping part is dropped while sliding), which makes stick resume smoothly.
-        *spring = if st > 0.0 { -ft / st } else { Vec3::zeros() };
+        *spring = if st > 0.0 {
+            ft * (-1.0 / st)
+        } else {
+            Vec3::zeros()
+        };
     }
     ContactForce {
         force: normal * normal_force + ft,
         normal_force,
         normal_stiffness: sn,
     }
+}
+
+/// Project a stored spring onto the tangent plane of `normal` and restore its length, so a
+/// contact that rotates carries its spring along without gaining or losing elastic energy.
+#[inline(always)]
+fn rotate_into_tangent_plane(spring: &mut Vec3, normal: Vec3) {
+    let old_len2 = spring.norm_squared();
+    let along = normal.dot(spring);
+    // The rescale factor is 1/sqrt(1 - along²/old_len2) ≈ 1 + along²/(2 old_len2): when that
+    // correction is below double-precision resolution, the projection alone is exact.
+    if along * along <= 1e-16 * old_len2 {
+        *spring -= normal * along;
+        return;
+    }
+    let projected = *spring - normal * along;
+    let new_len2 = projected.norm_squared();
+    *spring = if new_len2 > 0.0 {
+        projected * (old_len2 / new_len2).sqrt()
+    } else {
+        Vec3::zeros()
+    };
 }
 
 /// EPSD rolling torque on particle i (Ai et al. 2011, model C).
@@ -144,16 +160,7 @@ pub fn epsd_rolling_torque(
     spring: &mut Vec3,
 ) -> Vec3 {
     let omega_r = rolling_velocity - normal * normal.dot(&rolling_velocity);
-    let old_len2 = spring.norm_squared();
-    if old_len2 > 0.0 {
-        let projected = *spring - normal * normal.dot(spring);
-        let new_len2 = projected.norm_squared();
-        *spring = if new_len2 > 0.0 {
-            projected * (old_len2 / new_len2).sqrt()
-        } else {
-            Vec3::zeros()
-        };
-    }
+    rotate_into_tangent_plane(spring, normal);
     *spring -= omega_r * (rolling_stiffness * dt);
     let len2 = spring.norm_squared();
     if len2 > max_torque * max_torque {

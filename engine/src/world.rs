@@ -402,7 +402,6 @@ impl World {
     /// Force a neighbour-list rebuild before the next force evaluation.
     pub fn invalidate_neighbours(&mut self) {
         self.needs_rebuild = true;
-        self.forces_current = false;
     }
 
     /// The world's random number generator (deterministic from `config.seed`).
@@ -635,7 +634,13 @@ impl World {
     /// Contact pass + gather pass (+ integration), recording geometry loads if `record`.
     fn evaluate_forces(&mut self, t: f64, after: AfterForces, record: bool) {
         let placed = self.place_geometries(t);
-        let wall_loads = self.contact_pass(t, &placed);
+        // The Verlet start-up evaluation only wants forces: it must not advance the contact
+        // springs (they are advanced once per step, by the evaluation that ends the step).
+        let spring_dt = match after {
+            AfterForces::Nothing => 0.0,
+            _ => self.config.time_step,
+        };
+        let wall_loads = self.contact_pass(t, spring_dt, &placed);
         let rebuild = self.gather_pass(after);
         if rebuild {
             self.needs_rebuild = true;
@@ -659,9 +664,14 @@ impl World {
 
     /// Every particle computes its own pairs (i < j) and its geometry contacts. Returns, per
     /// chunk, the (force, torque) each geometry received from that chunk's particles.
-    fn contact_pass(&mut self, t: f64, placed: &[PlacedGeometry]) -> Vec<Vec<(Vec3, Vec3)>> {
+    fn contact_pass(
+        &mut self,
+        t: f64,
+        spring_dt: f64,
+        placed: &[PlacedGeometry],
+    ) -> Vec<Vec<(Vec3, Vec3)>> {
         let n = self.particles.len();
-        let dt = self.config.time_step;
+        let dt = spring_dt;
         let gravity = self.config.gravity;
         let domain = self.config.domain;
         let rolling_model = self.config.rolling_model;
@@ -772,7 +782,8 @@ impl World {
                             continue;
                         }
                         let dist = dist2.sqrt();
-                        let normal = d / dist;
+                        // One division, not nalgebra's three for `d / dist`.
+                        let normal = d * (1.0 / dist);
                         let overlap = rsum - dist;
                         // Contact point halfway through the overlap.
                         let lever_i = ri - 0.5 * overlap;

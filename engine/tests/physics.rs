@@ -540,6 +540,16 @@ fn sphere_sliding_across_triangle_edges_feels_a_smooth_normal_force() {
 
 /// A gas of spheres between a floor and a ceiling, periodic in x and y.
 fn gas(particles: usize, restitution: f64, friction: f64, seed: u64) -> World {
+    gas_sorted(particles, restitution, friction, seed, 4)
+}
+
+fn gas_sorted(
+    particles: usize,
+    restitution: f64,
+    friction: f64,
+    seed: u64,
+    sort_every_rebuilds: u32,
+) -> World {
     use rand::{Rng, SeedableRng};
     let materials = table(ball_material(), wall_material(), restitution, friction, 0.0);
     let size = 0.1;
@@ -560,6 +570,7 @@ fn gas(particles: usize, restitution: f64, friction: f64, seed: u64) -> World {
     c.gravity = Vec3::zeros();
     c.integrator = Integrator::VelocityVerlet;
     c.seed = seed;
+    c.sort_every_rebuilds = sort_every_rebuilds;
     let mut world = World::new(materials, c).unwrap();
     for z in [0.0, size] {
         let mut mesh = plane(0.1, 2);
@@ -893,4 +904,80 @@ fn a_factory_fills_particles_without_overlap_and_they_settle_in_a_box() {
     // No particle fell through the plane (nor was removed).
     assert_eq!(world.removed_count(), 0);
     assert!(p.position.iter().all(|x| x.z > 0.0));
+}
+
+#[test]
+fn contact_histories_survive_rebuilds_and_resorting() {
+    // Same frictional gas twice: once with the usual occasional rebuilds, once rebuilding and
+    // re-sorting the particles before every step. If a tangential spring were lost or given
+    // to the wrong pair at a rebuild, the runs would part at the level of the friction forces;
+    // with histories carried over they agree to round-off (sums run in a different order).
+    let mut usual = gas_sorted(200, 0.5, 0.5, 11, 4);
+    let mut resorted = gas_sorted(200, 0.5, 0.5, 11, 1);
+    let mut contacts = 0;
+    for _ in 0..3000 {
+        resorted.invalidate_neighbours();
+        resorted.step();
+        usual.step();
+        contacts += usual.contact_count();
+    }
+    assert!(
+        contacts > 1000,
+        "the gas must collide ({contacts} contact-steps)"
+    );
+    let worst = (0..200u64)
+        .map(|id| {
+            let a = usual.particles();
+            let b = resorted.particles();
+            let (ka, kb) = (a.index_of(id).unwrap(), b.index_of(id).unwrap());
+            (a.angular_velocity[ka] - b.angular_velocity[kb]).norm()
+        })
+        .fold(0.0, f64::max);
+    println!(
+        "{contacts} contact-steps, rebuilds {} vs {}; max |Δω| = {worst:.2e} rad/s",
+        usual.rebuild_count(),
+        resorted.rebuild_count()
+    );
+    assert!(resorted.rebuild_count() >= 3000);
+    assert!(worst < 1e-6, "{worst}");
+}
+
+proptest::proptest! {
+    #[test]
+    fn coulomb_cap_holds_and_normal_force_never_pulls(
+        overlap in 1e-7f64..1e-4,
+        nx in -1.0f64..1.0, ny in -1.0f64..1.0, nz in 0.1f64..1.0,
+        vx in -2.0f64..2.0, vy in -2.0f64..2.0, vz in -2.0f64..2.0,
+        sx in -1e-4f64..1e-4, sy in -1e-4f64..1e-4, sz in -1e-4f64..1e-4,
+        restitution in 0.1f64..1.0,
+        friction in 0.0f64..1.0,
+    ) {
+        use repose_engine::contact::hertz_mindlin;
+        use repose_engine::material::PairConstants;
+        let constants = PairConstants::new(
+            &ball_material(),
+            &wall_material(),
+            &Interaction { restitution, static_friction: friction, rolling_friction: 0.0 },
+        );
+        let normal = Vec3::new(nx, ny, nz).normalize();
+        let mut spring = Vec3::new(sx, sy, sz);
+        let before = (spring - normal * normal.dot(&spring)).norm();
+        let stored = spring.norm();
+        let contact = hertz_mindlin(
+            &constants, RADIUS, mass(RADIUS), overlap, normal, Vec3::new(vx, vy, vz), 0.0,
+            &mut spring,
+        );
+        let tangential = contact.force - normal * contact.force.dot(&normal);
+        proptest::prop_assert!(contact.normal_force >= 0.0);
+        proptest::prop_assert!(
+            tangential.norm() <= friction * contact.normal_force * (1.0 + 1e-9) + 1e-15
+        );
+        // With dt = 0 the spring is only rotated into the tangent plane: its length is kept
+        // unless the Coulomb cap rescaled it.
+        proptest::prop_assert!(spring.dot(&normal).abs() <= 1e-12 * stored.max(1e-30));
+        if tangential.norm() < friction * contact.normal_force * (1.0 - 1e-9) {
+            proptest::prop_assert!((spring.norm() - stored).abs() <= 1e-9 * stored);
+        }
+        let _ = before;
+    }
 }
