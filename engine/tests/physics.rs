@@ -981,3 +981,52 @@ proptest::proptest! {
         let _ = before;
     }
 }
+
+#[test]
+fn sphere_on_a_moving_belt_ends_rolling_at_two_sevenths_of_belt_speed() {
+    // In the belt's frame this is the launched-sphere problem with v0 = -v_belt: pure rolling
+    // at 5/7 of that after 2 v_belt / (7 μ g); in the lab frame v = v_belt - 5/7 v_belt.
+    use repose_engine::kinematics::TranslationSegment;
+    let (mu, g, belt) = (0.3, 9.81, 0.5);
+    let materials = table(ball_material(), wall_material(), 0.5, mu, 0.0);
+    let mut world = World::new(
+        materials,
+        config(
+            rayleigh_dt(0.2),
+            Vec3::new(0.0, 0.0, -g),
+            Integrator::SymplecticEuler,
+        ),
+    )
+    .unwrap();
+    let motion = Motion::new(
+        Pose::identity(),
+        vec![TranslationSegment {
+            velocity: Vec3::new(belt, 0.0, 0.0),
+            start: 0.0,
+            stop: 10.0,
+        }],
+        vec![],
+    )
+    .unwrap();
+    world
+        .add_geometry(Geometry {
+            name: "belt".into(),
+            mesh: plane(0.9, 45),
+            motion,
+            material: WALL,
+        })
+        .unwrap();
+    world
+        .add_particle(ParticleSpec::at_rest(
+            Vec3::new(0.0, 0.0, RADIUS - resting_overlap(RADIUS, g)),
+            RADIUS,
+            BALL,
+        ))
+        .unwrap();
+    let rolling_time = 2.0 * belt / (7.0 * mu * g);
+    world.run_until(2.0 * rolling_time);
+    let v = world.particles().velocity[0].x;
+    let expected = 2.0 / 7.0 * belt;
+    println!("sphere on belt: v = {v:.5} m/s (theory {expected:.5})");
+    assert!((v / expected - 1.0).abs() < 0.02);
+}
