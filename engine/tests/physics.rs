@@ -550,8 +550,34 @@ fn gas_sorted(
     seed: u64,
     sort_every_rebuilds: u32,
 ) -> World {
+    gas_with(
+        particles,
+        restitution,
+        friction,
+        seed,
+        sort_every_rebuilds,
+        None,
+    )
+}
+
+/// The gas, optionally with rolling friction μr = 0.2 in the given model.
+fn gas_with(
+    particles: usize,
+    restitution: f64,
+    friction: f64,
+    seed: u64,
+    sort_every_rebuilds: u32,
+    rolling: Option<RollingModel>,
+) -> World {
     use rand::{Rng, SeedableRng};
-    let materials = table(ball_material(), wall_material(), restitution, friction, 0.0);
+    let rolling_friction = if rolling.is_some() { 0.2 } else { 0.0 };
+    let materials = table(
+        ball_material(),
+        wall_material(),
+        restitution,
+        friction,
+        rolling_friction,
+    );
     let size = 0.1;
     let domain = Domain {
         min: Vec3::new(0.0, 0.0, -0.01),
@@ -571,6 +597,7 @@ fn gas_sorted(
     c.integrator = Integrator::VelocityVerlet;
     c.seed = seed;
     c.sort_every_rebuilds = sort_every_rebuilds;
+    c.rolling_model = rolling.unwrap_or_default();
     let mut world = World::new(materials, c).unwrap();
     for z in [0.0, size] {
         let mut mesh = plane(0.1, 2);
@@ -912,8 +939,17 @@ fn contact_histories_survive_rebuilds_and_resorting() {
     // re-sorting the particles before every step. If a tangential spring were lost or given
     // to the wrong pair at a rebuild, the runs would part at the level of the friction forces;
     // with histories carried over they agree to round-off (sums run in a different order).
-    let mut usual = gas_sorted(200, 0.5, 0.5, 11, 4);
-    let mut resorted = gas_sorted(200, 0.5, 0.5, 11, 1);
+    for rolling in [
+        RollingModel::ConstantDirectionalTorque,
+        RollingModel::epsd(),
+    ] {
+        histories_survive(rolling);
+    }
+}
+
+fn histories_survive(rolling: RollingModel) {
+    let mut usual = gas_with(200, 0.5, 0.5, 11, 4, Some(rolling));
+    let mut resorted = gas_with(200, 0.5, 0.5, 11, 1, Some(rolling));
     let mut contacts = 0;
     for _ in 0..3000 {
         resorted.invalidate_neighbours();
@@ -934,7 +970,7 @@ fn contact_histories_survive_rebuilds_and_resorting() {
         })
         .fold(0.0, f64::max);
     println!(
-        "{contacts} contact-steps, rebuilds {} vs {}; max |Δω| = {worst:.2e} rad/s",
+        "{rolling:?}: {contacts} contact-steps, rebuilds {} vs {}; max |Δω| = {worst:.2e} rad/s",
         usual.rebuild_count(),
         resorted.rebuild_count()
     );
