@@ -415,6 +415,9 @@ impl MaterialTable {
     }
 }
 
+/// The paper's (and a common EDEM) choice of time step: 20 % of the Rayleigh time.
+pub const DEFAULT_RAYLEIGH_FRACTION: f64 = 0.2;
+
 /// Rayleigh time T_R = π R sqrt(ρ/G) / (0.1631 ν + 0.8766) of a particle of radius R (s): the
 /// time a Rayleigh surface wave needs to cross it. EDEM recommends a time step of 20-40 % of T_R
 /// of the smallest particle; the paper uses 20 %.

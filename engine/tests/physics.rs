@@ -1066,3 +1066,16 @@ fn sphere_on_a_moving_belt_ends_rolling_at_two_sevenths_of_belt_speed() {
     println!("sphere on belt: v = {v:.5} m/s (theory {expected:.5})");
     assert!((v / expected - 1.0).abs() < 0.02);
 }
+
+#[test]
+fn an_empty_world_steps() {
+    let materials = table(ball_material(), wall_material(), 0.5, 0.5, 0.1);
+    for integrator in [Integrator::SymplecticEuler, Integrator::VelocityVerlet] {
+        let mut world =
+            World::new(materials.clone(), config(1e-5, Vec3::zeros(), integrator)).unwrap();
+        add_plane(&mut world, 0.1, 2);
+        world.run(10);
+        assert_eq!(world.particles().len(), 0);
+        assert_eq!(world.geometry_series(GeometryId(0)).len(), 10);
+    }
+}
