@@ -2,6 +2,7 @@
 //! calls the libraries and prints. Every user error is one line on stderr and exit status 2.
 
 mod analyze;
+mod bench_cmd;
 mod design_cmd;
 mod levels;
 mod sim;
@@ -29,6 +30,8 @@ enum Command {
     Analyze(analyze::AnalyzeArgs),
     /// Run a DEM scene file (TOML or JSON) and write final.csv, geometry forces, snapshots.
     Sim(sim::SimArgs),
+    /// Benchmarks (engine throughput); results are recorded in BENCHMARKS.md.
+    Bench(bench_cmd::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -37,6 +40,7 @@ fn main() -> ExitCode {
         Command::Design(args) => design_cmd::run(&args),
         Command::Analyze(args) => analyze::run(&args),
         Command::Sim(args) => sim::run(&args),
+        Command::Bench(args) => bench_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
