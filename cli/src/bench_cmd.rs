@@ -65,7 +65,7 @@ fn engine(args: &EngineBenchArgs) -> Result<()> {
     if args.particles.iter().any(|&n| n < 100) {
         bail!("--particles: each count must be at least 100");
     }
-    if args.threads.iter().any(|&t| t == 0) {
+    if args.threads.contains(&0) {
         bail!("--threads: each count must be at least 1");
     }
     if args.steps == 0 {
