@@ -721,8 +721,9 @@ fn results_are_bit_identical_across_thread_counts_and_runs() {
     assert_eq!(two, again);
 }
 
-/// CPU time (user + system) of this process so far, s, from /proc (Linux; 0 elsewhere). On a
-/// loaded machine wall-clock throughput is meaningless; CPU time per thread is not.
+/// CPU time (user + system, all threads, including finished ones) of this process so far,
+/// s, from /proc/self/stat (Linux; 10 ms resolution; 0 elsewhere). On a loaded machine
+/// wall-clock throughput is meaningless; CPU time is not (except for cache interference).
 fn process_cpu_seconds() -> f64 {
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     let after_name = stat.rsplit(')').next().unwrap_or("");
@@ -733,12 +734,14 @@ fn process_cpu_seconds() -> f64 {
             .and_then(|v| v.parse::<f64>().ok())
             .unwrap_or(0.0)
     };
-    // Fields 14 and 15 of stat (utime, stime) are at 11 and 12 after the name; 100 ticks/s.
+    // Fields 14 and 15 of stat (utime, stime) are the 12th and 13th after the name.
     (ticks(11) + ticks(12)) / 100.0
 }
 
 /// Throughput figures (run explicitly: `cargo test --release -p repose-engine --test physics
 /// bench_throughput -- --ignored --nocapture`; BENCH_PARTICLES, BENCH_STEPS override).
+/// Prints wall-clock throughput (what `bench::time_steps` returns) and throughput per
+/// CPU-second of the timed steps (warm-up included: 20 steps).
 #[test]
 #[ignore]
 fn bench_throughput() {
