@@ -43,7 +43,7 @@ for log in glob.glob(os.path.join(work, "bench_*_*.log")):
         f"{mem_mb * 1024 * np_ / atoms:.2f} | {rss_kb / atoms:.2f} | {load} |")))
 
 print("| N | MPI ranks | settling steps | loop time (s) | M particle-steps/s (wall) "
-      "| M particle-steps per CPU-s | contacts/particle | neighbour pairs/particle (rank 0) "
+      "| M particle-steps per CPU-s | contacts/particle | neighbour pairs/particle (half list) "
       "| neighbour builds (timed) | LIGGGHTS memory KiB/particle | max RSS KiB/particle "
       "| load (1 min) before |")
 print("|" + "---|" * 12)

@@ -3,6 +3,7 @@
 #
 #   bash bench/liggghts/run.sh                 # sizes 5000 20000 80000, 1 and 2 MPI ranks
 #   SIZES="10000 40000" PROCS="1 2" STEPS=2000 bash bench/liggghts/run.sh
+#   REUSE=1 SIZES=5000 bash bench/liggghts/run.sh   # re-time, keeping out/rest_5000.data
 #
 # Per size: make_bed.py writes the jittered lattice, in.settle collapses it (untimed, on
 # SETTLE_PROCS ranks) and writes the bed, then in.bench times STEPS steps of the bed at rest for
@@ -39,16 +40,19 @@ load1() { cut -d' ' -f1 /proc/loadavg; }
 
 for n in $SIZES; do
     vars="$(python3 "$HERE/make_bed.py" "$n" "$SEED" "init_$n.data")"
-    echo "== N=$n: settling on $SETTLE_PROCS rank(s), load $(load1)" >&2
-    t0=$(date +%s)
-    # shellcheck disable=SC2086
-    launch "$SETTLE_PROCS" liggghts -in "$HERE/in.settle" -var DIR "$HERE" -var DATA "init_$n.data" \
-        -var OUT "bed_$n.data" $vars -log "settle_$n.log" -screen none
-    settled="$(grep -a '^SETTLED' "settle_$n.log")"
-    echo "   $settled ($(( $(date +%s) - t0 )) s wall)" >&2
-    settle_steps="$(awk '{print $3}' <<<"$settled")"
-    # At rest, no contact history: drop the Velocities section.
-    sed '/^Velocities/,$d' "bed_$n.data" > "rest_$n.data"
+    if [ "${REUSE:-0}" = 1 ] && [ -s "rest_$n.data" ]; then
+        echo "== N=$n: reusing the settled bed rest_$n.data (REUSE=1)" >&2
+    else
+        echo "== N=$n: settling on $SETTLE_PROCS rank(s), load $(load1)" >&2
+        t0=$(date +%s)
+        # shellcheck disable=SC2086
+        launch "$SETTLE_PROCS" liggghts -in "$HERE/in.settle" -var DIR "$HERE" -var DATA "init_$n.data" \
+            -var OUT "bed_$n.data" $vars -log "settle_$n.log" -screen none
+        settled="$(grep -a '^SETTLED' "settle_$n.log")"
+        echo "   $settled ($(( $(date +%s) - t0 )) s wall)" >&2
+        # At rest, no contact history: drop the Velocities section.
+        sed '/^Velocities/,$d' "bed_$n.data" > "rest_$n.data"
+    fi
     for np in $PROCS; do
         load="$(load1)"
         echo "$load" > "load_${n}_$np.txt"
