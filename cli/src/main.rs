@@ -2,6 +2,7 @@
 //! calls the libraries and prints. Every user error is one line on stderr and exit status 2.
 
 mod analyze;
+mod aor_cmd;
 mod bench_cmd;
 mod design_cmd;
 mod levels;
@@ -32,6 +33,8 @@ enum Command {
     Sim(sim::SimArgs),
     /// Benchmarks (engine throughput); results are recorded in BENCHMARKS.md.
     Bench(bench_cmd::BenchArgs),
+    /// Angle-of-repose virtual experiment (funnel or lifted cylinder), measured automatically.
+    Aor(aor_cmd::AorArgs),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
         Command::Analyze(args) => analyze::run(&args),
         Command::Sim(args) => sim::run(&args),
         Command::Bench(args) => bench_cmd::run(&args),
+        Command::Aor(args) => aor_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,4 +1,5 @@
-//! Angle of repose of a granular heap: measurement from final particle positions
+//! Angle of repose of a granular heap: the virtual experiment ([`AorSpec`], [`run_aor`]: funnel
+//! or lifted-cylinder test on the DEM engine), the measurement from final particle positions
 //! ([`measure_angle_of_repose`]) and its side-view picture ([`side_view_svg`]).
 //!
 //! The input is plain slices (centres in metres with z up, radii in metres) so that this module
@@ -36,9 +37,19 @@
 
 mod measure;
 mod picture;
+mod run;
+mod spec;
 
 pub use measure::{
     measure_angle_of_repose, AngleOfRepose, DirectionProfile, FlankFit, MeasureError,
     MeasureSettings, ProjectionPlane, SideProjection,
 };
 pub use picture::{side_view_svg, PictureOptions};
+pub use run::{
+    run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy, GrainBudget, Progress,
+    RunStatus, SettleCheck,
+};
+pub use spec::{
+    AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, MaterialProps, Materials, Protocol,
+    RollingSpec, SettleSpec, SpecError, PRESETS,
+};

@@ -1,0 +1,647 @@
+//! Runs an [`AorSpec`]: builds the world (base plate, funnel or tube, factory), pours, waits for
+//! the heap to come to rest, measures it, and reports an [`AorResult`].
+//!
+//! Frame: z up, the top face of the base plate is z = 0, the funnel (or tube) axis is the z axis.
+//! Grains that leave the plate fall out of the simulation box and are counted as escaped.
+//!
+//! Only grains below the funnel outlet (or below the lifted tube) are measured, so grains held up
+//! in the funnel never count as part of the heap.
+
+use std::time::Instant;
+
+use repose_engine::distribution::SizeDistribution;
+use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
+use repose_engine::kinematics::{Motion, TranslationSegment};
+use repose_engine::material::rayleigh_time;
+use repose_engine::math::{Pose, Vec3};
+use repose_engine::mesh::generators::{cylinder, funnel, plane};
+use repose_engine::mesh::{FunnelSpec, FunnelTop};
+use repose_engine::neighbor::Domain;
+use repose_engine::world::{Geometry, World, WorldConfig};
+use serde::{Deserialize, Serialize};
+
+use super::measure::{measure_angle_of_repose, AngleOfRepose};
+use super::picture::{side_view_svg, PictureOptions};
+use super::spec::{AorSpec, Protocol, SpecError};
+
+/// Why a run could not start (a finished run that found no heap is an [`AorResult`] with a
+/// non-`ok` status, not an error).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AorError {
+    #[error(transparent)]
+    Spec(#[from] SpecError),
+    /// The engine rejected the world built from the spec (materials, mesh, factory).
+    #[error("{part}: {reason}")]
+    Build { part: &'static str, reason: String },
+}
+
+fn build_error(part: &'static str, e: impl std::fmt::Display) -> AorError {
+    AorError::Build {
+        part,
+        reason: e.to_string(),
+    }
+}
+
+/// What the progress callback is told.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress<'a> {
+    /// 0..1, monotonic. Filling is the first half, settling the second (against the time cap,
+    /// so a run that settles early jumps to 1).
+    pub fraction: f64,
+    /// `filling`, `lifting`, `settling`, `measuring`.
+    pub phase: &'a str,
+    /// Simulated time, s.
+    pub time: f64,
+    /// Grains in the world.
+    pub particles: usize,
+}
+
+/// The callback's answer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Control {
+    Continue,
+    Cancel,
+}
+
+/// Why the simulation stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EndedBy {
+    /// Mean kinetic energy per grain fell below the threshold.
+    KineticEnergy,
+    /// The measured angle stayed within the tolerance over the window.
+    AngleStable,
+    /// Simulated-time cap.
+    TimeCap,
+    /// Wall-clock cap.
+    WallTimeCap,
+    /// The progress callback asked to stop.
+    Cancelled,
+}
+
+/// Overall outcome. Only `ok` carries an angle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunStatus {
+    Ok,
+    /// More than `max_escaped_fraction` of the mass left the plate.
+    Escaped,
+    /// The heap never came to rest within the caps (or the funnel never passed all the mass).
+    NotSettled,
+    /// The grains do not form a measurable heap.
+    MeasurementFailed,
+    Cancelled,
+}
+
+/// Grain count and mass of one group.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Amount {
+    pub count: u64,
+    /// kg
+    pub mass: f64,
+}
+
+/// Where the grains ended.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct GrainBudget {
+    /// Everything the factory inserted.
+    pub inserted: Amount,
+    /// Grains below the outlet (or below the lifted tube): the heap region.
+    pub on_base: Amount,
+    /// Grains the measurement took as the heap (count; mass estimated from the mean grain mass
+    /// of the heap region).
+    pub on_pile: Amount,
+    /// Grains still in (or above) the funnel or tube.
+    pub held_up: Amount,
+    /// Grains that left the simulation box (fell off the plate).
+    pub escaped: Amount,
+}
+
+/// One at-rest check.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SettleCheck {
+    /// s
+    pub time: f64,
+    /// Mean kinetic energy per grain / (m g d).
+    pub kinetic_energy_ratio: f64,
+    /// Angle at this check (none if not measurable).
+    pub angle_deg: Option<f64>,
+    /// Grains in the heap region.
+    pub on_base: u64,
+}
+
+/// The result of one experiment (serde; what the worker returns and `result.json` holds).
+/// Angles in degrees, lengths in metres, masses in kg, times in seconds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AorResult {
+    pub status: RunStatus,
+    /// Why the status is not `ok`.
+    pub message: Option<String>,
+    /// Mean of the half-plane flank angles (only when `status` is `ok`).
+    pub angle_deg: Option<f64>,
+    /// Flank angle in each of the K half-planes.
+    pub per_direction_deg: Vec<f64>,
+    /// Side-projection (photograph) flank angles and their mean.
+    pub left_deg: Option<f64>,
+    pub right_deg: Option<f64>,
+    pub projection_mean_deg: Option<f64>,
+    /// Standard deviation and range across directions.
+    pub spread_std_deg: Option<f64>,
+    pub spread_min_deg: Option<f64>,
+    pub spread_max_deg: Option<f64>,
+    pub pile_height_m: Option<f64>,
+    pub base_diameter_m: Option<f64>,
+    /// The last measured angle even when the run did not settle (diagnostics only).
+    pub last_angle_deg: Option<f64>,
+    pub grains: GrainBudget,
+    pub grain_diameter_m: f64,
+    pub simulated_time_s: f64,
+    /// Time at which the factory had inserted all the mass (none if it never did).
+    pub insertion_end_s: Option<f64>,
+    pub steps: u64,
+    pub time_step_s: f64,
+    pub wall_time_s: f64,
+    pub ended_by: EndedBy,
+    pub came_to_rest: bool,
+    pub checks: Vec<SettleCheck>,
+}
+
+/// A finished run: the result plus what the caller may want to draw or save.
+#[derive(Debug)]
+pub struct AorRun {
+    pub result: AorResult,
+    /// The full measurement (none if it failed).
+    pub measurement: Option<AngleOfRepose>,
+    /// The grains that were measured (the heap region).
+    pub positions: Vec<[f64; 3]>,
+    pub radii: Vec<f64>,
+    /// The final world (e.g. for `write_particles_csv`).
+    pub world: World,
+}
+
+impl AorRun {
+    /// Side view with the fitted flank lines and angles (x-z projection), if measured.
+    pub fn pile_svg(&self) -> Option<String> {
+        let m = self.measurement.as_ref()?;
+        let options = PictureOptions {
+            title: Some(format!(
+                "angle of repose {:.2}° (left {:.2}°, right {:.2}°), status {:?}",
+                m.angle_deg, m.left_deg, m.right_deg, self.result.status
+            )),
+            ..PictureOptions::default()
+        };
+        Some(side_view_svg(m, &self.positions, &self.radii, &options))
+    }
+}
+
+/// The built world and what the run loop needs to know about it.
+#[derive(Debug)]
+struct Rig {
+    world: World,
+    /// Grains whose centre is below this height are in the heap region, m.
+    heap_top: f64,
+    /// Time from which the at-rest checks may start (besides the end of insertion), s.
+    ready_after: f64,
+}
+
+fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
+    spec.validate()?;
+    let table = spec
+        .material_set()
+        .build()
+        .map_err(|e| build_error("materials", e))?;
+    let soil = table.id("soil").expect("the paper set has soil");
+    let base_material = table.id(&spec.base.material).expect("validated");
+    let steel = table.id("steel").expect("the paper set has steel");
+    let size =
+        SizeDistribution::new(spec.particle.clone()).map_err(|e| build_error("particle", e))?;
+    let (r_min, r_max) = (size.min_radius(), size.max_radius());
+    let d = 2.0 * r_max;
+    let dt = spec.time_step_rayleigh_fraction * rayleigh_time(r_min, table.material(soil));
+    let g = 9.81;
+
+    let half = 0.5 * spec.base.size;
+    let cells = ((spec.base.size / 0.02).round() as usize).clamp(1, 64);
+    let base = Geometry {
+        name: "base".into(),
+        mesh: plane(spec.base.size, spec.base.size, cells, cells)
+            .map_err(|e| build_error("base", e))?,
+        motion: Motion::stationary(Pose::identity()),
+        material: base_material,
+    };
+
+    let (vessel, region, heap_top, ready_after, top_of_box) = match spec.protocol {
+        Protocol::Funnel => {
+            let f = &spec.funnel;
+            let mesh = funnel(&FunnelSpec {
+                wall_inclination_deg: f.wall_inclination_deg,
+                outlet_diameter: f.outlet_diameter,
+                outlet_height: f.outlet_height,
+                top: FunnelTop::ConeHeight(f.cone_height),
+                segments: f.segments,
+            })
+            .map_err(|e| build_error("funnel", e))?;
+            let rim_z = f.outlet_height + f.cone_height;
+            let z_min = rim_z + 0.5 * d;
+            let z_max = z_min + (4.0 * d).max(0.01);
+            let region = Region::Cylinder {
+                axis_x: 0.0,
+                axis_y: 0.0,
+                radius: 0.35 * f.top_diameter(),
+                z_min,
+                z_max,
+            };
+            // The heap region ends a grain below the outlet: grains resting in the outlet are
+            // held up by the funnel, not by the heap.
+            let heap_top = f.outlet_height - d;
+            // The last grains need to fall through the funnel and onto the heap.
+            let ready = (2.0 * z_max / g).sqrt();
+            (mesh, region, heap_top, ready, z_max)
+        }
+        Protocol::LiftedCylinder => {
+            let c = &spec.cylinder;
+            let radius = 0.5 * c.inner_diameter;
+            let mesh = cylinder(radius, c.height, c.segments, false)
+                .map_err(|e| build_error("cylinder", e))?;
+            let z_min = c.height + 0.5 * d;
+            let z_max = z_min + (4.0 * d).max(0.01);
+            let region = Region::Cylinder {
+                axis_x: 0.0,
+                axis_y: 0.0,
+                radius: 0.8 * radius,
+                z_min,
+                z_max,
+            };
+            let fill_time = spec.total_mass / spec.mass_rate + (2.0 * z_max / g).sqrt();
+            let lift_start = fill_time + c.fill_settle_time;
+            let lift_end = lift_start + c.height / c.lift_speed;
+            (
+                mesh,
+                region,
+                f64::INFINITY,
+                lift_end,
+                z_max.max(2.0 * c.height),
+            )
+        }
+    };
+    let motion = match spec.protocol {
+        Protocol::Funnel => Motion::stationary(Pose::identity()),
+        Protocol::LiftedCylinder => {
+            let c = &spec.cylinder;
+            let start = ready_after - c.height / c.lift_speed;
+            Motion::new(
+                Pose::identity(),
+                vec![TranslationSegment {
+                    velocity: Vec3::new(0.0, 0.0, c.lift_speed),
+                    start,
+                    stop: ready_after,
+                }],
+                Vec::new(),
+            )
+            .map_err(|e| build_error("cylinder", e))?
+        }
+    };
+    let vessel = Geometry {
+        name: match spec.protocol {
+            Protocol::Funnel => "funnel".into(),
+            Protocol::LiftedCylinder => "cylinder".into(),
+        },
+        mesh: vessel,
+        motion,
+        material: steel,
+    };
+
+    // A tight box around the rig keeps the neighbour grid small; its floor is below the plate
+    // so grains that roll off the edge fall out and are counted as escaped.
+    let margin = 2.0 * d;
+    let domain = Domain::closed(
+        Vec3::new(-half - margin, -half - margin, -0.02),
+        Vec3::new(half + margin, half + margin, top_of_box + 0.01),
+    );
+    let mut config = WorldConfig::new(dt, domain);
+    config.rolling_model = spec.engine_rolling_model();
+    config.seed = spec.seed;
+    config.geometry_record_interval = 1000;
+    let mut world = World::new(table.clone(), config).map_err(|e| build_error("world", e))?;
+    world
+        .add_geometry(base)
+        .map_err(|e| build_error("base", e))?;
+    world
+        .add_geometry(vessel)
+        .map_err(|e| build_error("vessel", e))?;
+    let factory = Factory::new(
+        FactorySpec {
+            region,
+            mass_rate: spec.mass_rate,
+            total_mass: spec.total_mass,
+            start_time: 0.0,
+            velocity: Vec3::new(0.0, 0.0, -spec.inlet_speed),
+            size,
+            max_attempts_per_particle: 100,
+        },
+        table.material(soil).density,
+    )
+    .map_err(|e| build_error("factory", e))?;
+    world
+        .add_source(ParticleSource::Factory(factory), soil)
+        .map_err(|e| build_error("factory", e))?;
+    Ok(Rig {
+        world,
+        heap_top,
+        ready_after,
+    })
+}
+
+fn factory_state(world: &World) -> (bool, f64, u64) {
+    for source in world.sources() {
+        if let ParticleSource::Factory(f) = source {
+            return (f.is_finished(), f.inserted_mass(), f.inserted_count());
+        }
+    }
+    (true, 0.0, 0)
+}
+
+/// The grains of the heap region: centres below `heap_top` (and, for the tube, below the tube's
+/// current bottom).
+fn heap_region(world: &World, heap_top: f64, spec: &AorSpec) -> (Vec<[f64; 3]>, Vec<f64>, f64) {
+    let top = match spec.protocol {
+        Protocol::Funnel => heap_top,
+        Protocol::LiftedCylinder => {
+            let bottom = world
+                .geometry(repose_engine::world::GeometryId(1))
+                .motion
+                .offset_at(world.time())
+                .z;
+            // Before the lift the whole fill counts (it is measured only after the lift).
+            if bottom <= 0.0 {
+                f64::INFINITY
+            } else {
+                bottom
+            }
+        }
+    }
+    .min(heap_top);
+    let p = world.particles();
+    let mut positions = Vec::new();
+    let mut radii = Vec::new();
+    let mut mass = 0.0;
+    for k in 0..p.len() {
+        let x = p.position[k];
+        if x.z < top {
+            positions.push([x.x, x.y, x.z]);
+            radii.push(p.radius[k]);
+            mass += p.mass[k];
+        }
+    }
+    (positions, radii, mass)
+}
+
+fn kinetic_energy_ratio(world: &World, g: f64) -> f64 {
+    let p = world.particles();
+    if p.is_empty() {
+        return 0.0;
+    }
+    let n = p.len() as f64;
+    let mean_mass = p.mass.iter().sum::<f64>() / n;
+    let mean_d = 2.0 * p.radius.iter().sum::<f64>() / n;
+    p.kinetic_energy() / n / (mean_mass * g * mean_d)
+}
+
+/// Runs the experiment. `progress` is called every few hundred steps and at every check; if it
+/// returns [`Control::Cancel`] the run stops and is reported as `cancelled`.
+pub fn run_aor(
+    spec: &AorSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<AorRun, AorError> {
+    let started = Instant::now();
+    let Rig {
+        mut world,
+        heap_top,
+        ready_after,
+    } = build_rig(spec)?;
+    let g = 9.81;
+    let mut settings = spec.measure.clone();
+    settings.base_z_m = 0.0;
+    settings.axis_xy_m = Some([0.0, 0.0]);
+
+    let nominal_fill = spec.total_mass / spec.mass_rate;
+    let mut insertion_end: Option<f64> = None;
+    let mut ended_by: Option<EndedBy> = None;
+    let mut checks: Vec<SettleCheck> = Vec::new();
+    let mut next_check = f64::INFINITY;
+    let mut deadline = nominal_fill + ready_after + spec.time_cap;
+    const REPORT_EVERY: u64 = 200;
+
+    while ended_by.is_none() {
+        world.step();
+        let t = world.time();
+        if insertion_end.is_none() {
+            let (finished, _, _) = factory_state(&world);
+            if finished {
+                insertion_end = Some(t);
+                let ready = t.max(ready_after);
+                next_check = ready + spec.settle.min_time;
+                deadline = ready + spec.time_cap;
+            }
+        }
+        let is_check = t >= next_check;
+        if world.steps() % REPORT_EVERY == 0 || is_check {
+            let (phase, fraction) = match insertion_end {
+                None => {
+                    let (_, mass, _) = factory_state(&world);
+                    ("filling", 0.5 * (mass / spec.total_mass).min(1.0))
+                }
+                Some(end) => {
+                    let ready = end.max(ready_after);
+                    let phase = if t < ready && spec.protocol == Protocol::LiftedCylinder {
+                        "lifting"
+                    } else {
+                        "settling"
+                    };
+                    (
+                        phase,
+                        0.5 + 0.5 * ((t - end) / (deadline - end)).clamp(0.0, 1.0),
+                    )
+                }
+            };
+            let control = progress(Progress {
+                fraction,
+                phase,
+                time: t,
+                particles: world.particles().len(),
+            });
+            if control == Control::Cancel {
+                ended_by = Some(EndedBy::Cancelled);
+                break;
+            }
+        }
+        if is_check {
+            next_check += spec.settle.check_interval;
+            let ke = kinetic_energy_ratio(&world, g);
+            let (positions, radii, _) = heap_region(&world, heap_top, spec);
+            let angle = measure_angle_of_repose(&positions, &radii, &settings)
+                .ok()
+                .map(|m| m.angle_deg);
+            checks.push(SettleCheck {
+                time: t,
+                kinetic_energy_ratio: ke,
+                angle_deg: angle,
+                on_base: positions.len() as u64,
+            });
+            let window = spec.settle.angle_window;
+            if ke < spec.settle.kinetic_energy_threshold {
+                ended_by = Some(EndedBy::KineticEnergy);
+            } else if checks.len() >= window {
+                let recent = &checks[checks.len() - window..];
+                let angles: Option<Vec<f64>> = recent.iter().map(|c| c.angle_deg).collect();
+                let same_grains = recent.iter().all(|c| c.on_base == recent[0].on_base);
+                if let (Some(angles), true) = (angles, same_grains) {
+                    let lo = angles.iter().copied().fold(f64::INFINITY, f64::min);
+                    let hi = angles.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    if hi - lo <= spec.settle.angle_tolerance_deg {
+                        ended_by = Some(EndedBy::AngleStable);
+                    }
+                }
+            }
+            if ended_by.is_none() {
+                if let Some(cap) = spec.wall_time_cap {
+                    if started.elapsed().as_secs_f64() > cap {
+                        ended_by = Some(EndedBy::WallTimeCap);
+                    }
+                }
+            }
+        }
+        if ended_by.is_none() && t >= deadline {
+            ended_by = Some(EndedBy::TimeCap);
+        }
+        if ended_by.is_none() && world.steps() % REPORT_EVERY == 0 {
+            if let Some(cap) = spec.wall_time_cap {
+                if started.elapsed().as_secs_f64() > cap {
+                    ended_by = Some(EndedBy::WallTimeCap);
+                }
+            }
+        }
+    }
+    let ended_by = ended_by.expect("loop ends with a reason");
+    let _ = progress(Progress {
+        fraction: 1.0,
+        phase: "measuring",
+        time: world.time(),
+        particles: world.particles().len(),
+    });
+
+    // Bookkeeping.
+    let (_, inserted_mass, inserted_count) = factory_state(&world);
+    let (positions, radii, on_base_mass) = heap_region(&world, heap_top, spec);
+    let p = world.particles();
+    let present_mass: f64 = p.mass.iter().sum();
+    let on_base_count = positions.len() as u64;
+    let escaped = Amount {
+        count: world.removed_count(),
+        mass: (inserted_mass - present_mass).max(0.0),
+    };
+    let held_up = Amount {
+        count: p.len() as u64 - on_base_count,
+        mass: present_mass - on_base_mass,
+    };
+    let grain_diameter_m = if radii.is_empty() {
+        2.0 * p.radius.iter().sum::<f64>() / (p.len().max(1) as f64)
+    } else {
+        2.0 * radii.iter().sum::<f64>() / radii.len() as f64
+    };
+    let measured = measure_angle_of_repose(&positions, &radii, &settings);
+    let mean_grain_mass = on_base_mass / (on_base_count.max(1) as f64);
+    let on_pile = match &measured {
+        Ok(m) => Amount {
+            count: m.particles_considered as u64,
+            mass: m.particles_considered as f64 * mean_grain_mass,
+        },
+        Err(_) => Amount::default(),
+    };
+    let escaped_fraction = if inserted_mass > 0.0 {
+        escaped.mass / inserted_mass
+    } else {
+        0.0
+    };
+    let came_to_rest = matches!(ended_by, EndedBy::KineticEnergy | EndedBy::AngleStable);
+    let (status, message) = if ended_by == EndedBy::Cancelled {
+        (RunStatus::Cancelled, Some("cancelled".to_owned()))
+    } else if insertion_end.is_none() {
+        (
+            RunStatus::NotSettled,
+            Some(format!(
+                "only {:.4} of {:.4} kg inserted before the cap (funnel or tube full?)",
+                inserted_mass, spec.total_mass
+            )),
+        )
+    } else if escaped_fraction > spec.max_escaped_fraction {
+        (
+            RunStatus::Escaped,
+            Some(format!(
+                "{:.1} % of the mass left the plate (limit {:.1} %)",
+                100.0 * escaped_fraction,
+                100.0 * spec.max_escaped_fraction
+            )),
+        )
+    } else if let Err(e) = &measured {
+        (RunStatus::MeasurementFailed, Some(e.to_string()))
+    } else if !came_to_rest {
+        (
+            RunStatus::NotSettled,
+            Some(format!("the heap did not come to rest ({ended_by:?})")),
+        )
+    } else {
+        (RunStatus::Ok, None)
+    };
+    let ok = status == RunStatus::Ok;
+    let m = measured.as_ref().ok();
+    let when_ok = |f: &dyn Fn(&AngleOfRepose) -> f64| if ok { m.map(f) } else { None };
+    let result = AorResult {
+        status,
+        message,
+        angle_deg: when_ok(&|m| m.angle_deg),
+        per_direction_deg: if ok {
+            m.map(|m| m.per_direction_deg.clone()).unwrap_or_default()
+        } else {
+            Vec::new()
+        },
+        left_deg: when_ok(&|m| m.left_deg),
+        right_deg: when_ok(&|m| m.right_deg),
+        projection_mean_deg: when_ok(&|m| m.projection_mean_deg),
+        spread_std_deg: when_ok(&|m| m.std_dev_deg),
+        spread_min_deg: when_ok(&|m| m.min_deg),
+        spread_max_deg: when_ok(&|m| m.max_deg),
+        pile_height_m: when_ok(&|m| m.pile_height_m),
+        base_diameter_m: when_ok(&|m| m.base_diameter_m),
+        last_angle_deg: m.map(|m| m.angle_deg),
+        grains: GrainBudget {
+            inserted: Amount {
+                count: inserted_count,
+                mass: inserted_mass,
+            },
+            on_base: Amount {
+                count: on_base_count,
+                mass: on_base_mass,
+            },
+            on_pile,
+            held_up,
+            escaped,
+        },
+        grain_diameter_m,
+        simulated_time_s: world.time(),
+        insertion_end_s: insertion_end,
+        steps: world.steps(),
+        time_step_s: world.config().time_step,
+        wall_time_s: started.elapsed().as_secs_f64(),
+        ended_by,
+        came_to_rest,
+        checks,
+    };
+    Ok(AorRun {
+        result,
+        measurement: measured.ok(),
+        positions,
+        radii,
+        world,
+    })
+}

@@ -1,0 +1,586 @@
+//! The angle-of-repose experiment as serde data ([`AorSpec`]): what the job server sends to a
+//! worker unchanged, what `repose aor --spec FILE` reads, and what `--set path=value` edits.
+//!
+//! # Dotted paths for [`AorSpec::set`]
+//!
+//! Every field is addressable by its JSON path with `.` between levels; the value is parsed as
+//! JSON if it parses (`0.3`, `true`, `"cdt"`, `{"kind":"fixed","radius":0.001}`), else taken as a
+//! string (`cdt`). The main ones:
+//!
+//! | path | meaning (SI units) | default |
+//! |---|---|---|
+//! | `protocol` | `funnel` or `lifted_cylinder` | `funnel` |
+//! | `soil_soil.restitution` / `.static_friction` / `.rolling_friction` | N1 / N2 / N3 | 0.45 / 0.442 / 0.140 |
+//! | `soil_steel.restitution` / `.static_friction` / `.rolling_friction` | N4 / N5 / N6 | 0.40 / 0.305 / 0.50 |
+//! | `materials.soil.density` / `.youngs_modulus` / `.poisson` | Table 1 | 2664 / 3.67e6 / 0.36 |
+//! | `materials.steel.density` / `.youngs_modulus` / `.poisson` | Table 1 | 7850 / 2.1e11 / 0.30 |
+//! | `rolling_model` | `cdt` (EDEM's constant directional torque) or `epsd` | `cdt` |
+//! | `epsd_viscous_damping` | EPSD rolling dashpot ηr | 0.3 |
+//! | `particle` | engine size distribution: `{"kind":"fixed","radius":r}`, `uniform`, `normal`, `sieve_table` | fixed 1 mm |
+//! | `particle.radius` | radius of the fixed-size grains, m | 0.001 |
+//! | `total_mass`, `mass_rate` | kg, kg/s | 0.05, 0.15 |
+//! | `inlet_speed` | downward speed of new grains, m/s | 0.5 |
+//! | `funnel.wall_inclination_deg` / `.outlet_diameter` / `.outlet_height` / `.cone_height` / `.segments` | funnel | 60 / 0.017 / 0.105 / 0.04 / 48 |
+//! | `cylinder.inner_diameter` / `.height` / `.lift_speed` / `.fill_settle_time` / `.segments` | lifted tube | 0.04 / 0.08 / 0.05 / 0.3 / 48 |
+//! | `base.material` / `base.size` | base plate (`steel` or `soil`), square side, m | steel / 0.3 |
+//! | `settle.min_time` / `.check_interval` / `.kinetic_energy_threshold` / `.angle_tolerance_deg` / `.angle_window` | at-rest criteria | 0.1 / 0.1 / 1e-4 / 0.3 / 3 |
+//! | `time_cap` | simulated time after insertion ends before giving up, s | 3.0 |
+//! | `wall_time_cap` | wall-clock seconds before giving up (`null`: none) | null |
+//! | `max_escaped_fraction` | escaped mass fraction above which the run is `escaped` | 0.05 |
+//! | `time_step_rayleigh_fraction` | Δt as a fraction of the Rayleigh time of the smallest grain | 0.2 |
+//! | `seed` | factory RNG seed | 1 |
+//! | `measure.*` | [`MeasureSettings`] (e.g. `measure.directions`, `measure.band_low_fraction`) | see there |
+//!
+//! # Presets
+//!
+//! * [`AorSpec::paper`] (`default`): 1 mm radius monodisperse grains (d = 2 mm, the 17 mm outlet
+//!   is 8.5 d), 50 g (about 4 500 grains), the paper's funnel unscaled.
+//! * [`AorSpec::fast`] (`fast`, for tests): 1.25 mm radius (outlet 6.8 d, funnel unscaled), 12 g
+//!   (about 550 grains) and a 65 mm outlet height, so the stream falls for less time.
+//!
+//! # What the grain size does to the angle
+//!
+//! Real desert sand is ~0.1-0.3 mm; simulating that in a 50 g heap would need millions of grains,
+//! so DEM calibrations use coarse grains, and coarse *monodisperse spheres* pile lower than sand
+//! (spheres roll; there is no interlocking of angular grains and no size segregation filling the
+//! gaps). Rolling friction stands in for the missing shape: with the default CDT model the
+//! resisting torque is μr Fn R, so its lever arm is the particle radius itself and it scales with
+//! the grain like every other force; coarsening therefore changes the angle mainly through the
+//! number of grains across the heap (a heap only ~10 grains high has a rounded apex and toe that
+//! occupy much of the fit band). Expect the `fast` preset to read a few degrees lower than the
+//! default at the same coefficients; compare angles only within one preset.
+
+use std::fmt::Write as _;
+
+use repose_engine::contact::RollingModel;
+use repose_engine::distribution::SizeDistributionSpec;
+use repose_engine::material::{Interaction, Material, MaterialSet};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use super::measure::MeasureSettings;
+
+/// Why a spec (or a `--set`) is not usable. The message names the path.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SpecError {
+    /// `path` does not exist; `valid` lists the keys at the level where the walk stopped.
+    #[error("unknown spec path {path:?}: no key {key:?} here (valid keys: {valid})")]
+    UnknownPath {
+        path: String,
+        key: String,
+        valid: String,
+    },
+    /// The path exists but the new value does not fit its type.
+    #[error("cannot set {path:?} to {value}: {reason}")]
+    BadValue {
+        path: String,
+        value: String,
+        reason: String,
+    },
+    /// An assignment was not `key=value`.
+    #[error("expected key=value, got {0:?}")]
+    NotAnAssignment(String),
+    /// A field has an impossible value.
+    #[error("{path}: {reason}")]
+    Invalid { path: String, reason: String },
+    /// Not a valid spec document.
+    #[error("spec is not valid JSON for an AorSpec: {0}")]
+    Parse(String),
+}
+
+fn invalid(path: &str, reason: impl std::fmt::Display) -> SpecError {
+    SpecError::Invalid {
+        path: path.to_owned(),
+        reason: reason.to_string(),
+    }
+}
+
+/// How the heap is formed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Protocol {
+    /// The paper's test: grains poured through a fixed funnel onto a steel plate.
+    Funnel,
+    /// Grains fill a steel tube standing on the plate; the tube is lifted and the heap slumps.
+    LiftedCylinder,
+}
+
+/// Rolling-resistance model (see [`repose_engine::contact::RollingModel`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RollingSpec {
+    /// EDEM's default constant directional torque, lever arm = particle radius.
+    Cdt,
+    /// Elastic-plastic spring-dashpot (Ai et al. 2011), with `epsd_viscous_damping`.
+    Epsd,
+}
+
+/// Bulk properties of one material (Table 1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialProps {
+    /// kg/m³
+    pub density: f64,
+    /// Young's modulus, Pa.
+    pub youngs_modulus: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+}
+
+/// The two materials of the test.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Materials {
+    pub soil: MaterialProps,
+    pub steel: MaterialProps,
+}
+
+impl Default for Materials {
+    fn default() -> Self {
+        let props = |m: Material| MaterialProps {
+            density: m.density,
+            youngs_modulus: m.youngs_modulus,
+            poisson: m.poisson,
+        };
+        Materials {
+            soil: props(Material::paper_soil()),
+            steel: props(Material::paper_steel()),
+        }
+    }
+}
+
+/// The paper's funnel. Only wall inclination (60°), outlet diameter (17 mm) and outlet height
+/// (105 mm) are given there; the cone height (40 mm, i.e. a top diameter of 63.2 mm) is our
+/// choice: it holds ~75 g of sand, more than the default heap, so the factory never waits for
+/// room even though a 17 mm outlet discharges 2 mm grains slower than 0.15 kg/s (Beverloo).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FunnelGeometry {
+    /// Wall angle from the horizontal, degrees.
+    pub wall_inclination_deg: f64,
+    /// m
+    pub outlet_diameter: f64,
+    /// Height of the outlet above the base plate, m.
+    pub outlet_height: f64,
+    /// Vertical height of the cone from outlet to top rim, m.
+    pub cone_height: f64,
+    /// Facets around the axis.
+    pub segments: usize,
+}
+
+impl Default for FunnelGeometry {
+    fn default() -> Self {
+        FunnelGeometry {
+            wall_inclination_deg: 60.0,
+            outlet_diameter: 0.017,
+            outlet_height: 0.105,
+            cone_height: 0.04,
+            segments: 48,
+        }
+    }
+}
+
+impl FunnelGeometry {
+    /// Top rim diameter, m.
+    pub fn top_diameter(&self) -> f64 {
+        self.outlet_diameter + 2.0 * self.cone_height / self.wall_inclination_deg.to_radians().tan()
+    }
+}
+
+/// The lifted-cylinder (tube) test.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CylinderGeometry {
+    /// m
+    pub inner_diameter: f64,
+    /// m
+    pub height: f64,
+    /// Upward speed of the tube, m/s.
+    pub lift_speed: f64,
+    /// Time between the end of insertion and the start of the lift, s (the fill settles).
+    pub fill_settle_time: f64,
+    pub segments: usize,
+}
+
+impl Default for CylinderGeometry {
+    fn default() -> Self {
+        CylinderGeometry {
+            inner_diameter: 0.04,
+            height: 0.08,
+            lift_speed: 0.05,
+            fill_settle_time: 0.3,
+            segments: 48,
+        }
+    }
+}
+
+/// The plate the heap forms on (a square centred under the funnel, top face at z = 0).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaseSpec {
+    /// `steel` (the paper) or `soil` (a rough base of the same contact law as the grains).
+    pub material: String,
+    /// Side of the square plate, m. Grains leaving it fall out of the domain and are counted as
+    /// escaped.
+    pub size: f64,
+}
+
+impl Default for BaseSpec {
+    fn default() -> Self {
+        BaseSpec {
+            material: "steel".into(),
+            size: 0.3,
+        }
+    }
+}
+
+/// When is the heap "at rest". Checks run every `check_interval` once insertion has ended (and,
+/// for the tube, the lift is over) and `min_time` has passed since. Either criterion ends the run:
+///
+/// * kinetic energy: the mean kinetic energy per grain is below `kinetic_energy_threshold ×
+///   m g d` (m, d: mean grain mass and diameter), i.e. grains move by much less than their
+///   own size under gravity;
+/// * angle stable: the last `angle_window` measured angles lie within `angle_tolerance_deg` of
+///   each other and no grain joined or left the heap region meanwhile. Constant-torque rolling
+///   friction makes heaps jitter and creep, so kinetic energy may never get small although the
+///   angle no longer changes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SettleSpec {
+    /// s
+    pub min_time: f64,
+    /// s
+    pub check_interval: f64,
+    /// Dimensionless, relative to m g d.
+    pub kinetic_energy_threshold: f64,
+    /// degrees
+    pub angle_tolerance_deg: f64,
+    /// Number of consecutive checks.
+    pub angle_window: usize,
+}
+
+impl Default for SettleSpec {
+    fn default() -> Self {
+        SettleSpec {
+            min_time: 0.1,
+            check_interval: 0.1,
+            kinetic_energy_threshold: 1e-4,
+            angle_tolerance_deg: 0.3,
+            angle_window: 3,
+        }
+    }
+}
+
+/// A complete angle-of-repose experiment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AorSpec {
+    pub protocol: Protocol,
+    #[serde(default)]
+    pub materials: Materials,
+    /// N1-N3.
+    pub soil_soil: Interaction,
+    /// N4-N6.
+    pub soil_steel: Interaction,
+    pub rolling_model: RollingSpec,
+    #[serde(default = "default_epsd_damping")]
+    pub epsd_viscous_damping: f64,
+    /// Grain sizes (engine distribution spec, radii in m).
+    pub particle: SizeDistributionSpec,
+    /// kg
+    pub total_mass: f64,
+    /// kg/s
+    pub mass_rate: f64,
+    /// Downward speed of inserted grains, m/s (a gentle pour into the funnel).
+    #[serde(default = "default_inlet_speed")]
+    pub inlet_speed: f64,
+    #[serde(default)]
+    pub funnel: FunnelGeometry,
+    #[serde(default)]
+    pub cylinder: CylinderGeometry,
+    #[serde(default)]
+    pub base: BaseSpec,
+    #[serde(default)]
+    pub settle: SettleSpec,
+    /// Simulated time allowed after insertion (and lift) ended before the run is declared
+    /// unsettled, s.
+    pub time_cap: f64,
+    /// Wall-clock cap, s; `None`: none.
+    #[serde(default)]
+    pub wall_time_cap: Option<f64>,
+    /// Escaped mass above this fraction of the inserted mass makes the run `escaped`.
+    #[serde(default = "default_max_escaped")]
+    pub max_escaped_fraction: f64,
+    /// Δt = this × Rayleigh time of the smallest grain (EDEM's rule; the paper used 20 %).
+    #[serde(default = "default_rayleigh_fraction")]
+    pub time_step_rayleigh_fraction: f64,
+    #[serde(default)]
+    pub seed: u64,
+    /// Measurement settings; `base_z_m` and `axis_xy_m` are overwritten by the run (plate at
+    /// z = 0, funnel axis at x = y = 0).
+    #[serde(default)]
+    pub measure: MeasureSettings,
+}
+
+fn default_epsd_damping() -> f64 {
+    0.3
+}
+fn default_inlet_speed() -> f64 {
+    0.5
+}
+fn default_max_escaped() -> f64 {
+    0.05
+}
+fn default_rayleigh_fraction() -> f64 {
+    0.2
+}
+
+/// Names of the presets accepted by [`AorSpec::preset`].
+pub const PRESETS: [&str; 2] = ["default", "fast"];
+
+impl Default for AorSpec {
+    fn default() -> Self {
+        AorSpec::paper()
+    }
+}
+
+impl AorSpec {
+    /// The paper's calibrated point and funnel at the default resolution (1 mm grains, 50 g).
+    pub fn paper() -> AorSpec {
+        AorSpec {
+            protocol: Protocol::Funnel,
+            materials: Materials::default(),
+            soil_soil: Interaction {
+                restitution: 0.45,
+                static_friction: 0.442,
+                rolling_friction: 0.140,
+            },
+            soil_steel: Interaction {
+                restitution: 0.40,
+                static_friction: 0.305,
+                rolling_friction: 0.50,
+            },
+            rolling_model: RollingSpec::Cdt,
+            epsd_viscous_damping: default_epsd_damping(),
+            particle: SizeDistributionSpec::Fixed { radius: 0.001 },
+            total_mass: 0.05,
+            mass_rate: 0.15,
+            inlet_speed: default_inlet_speed(),
+            funnel: FunnelGeometry::default(),
+            cylinder: CylinderGeometry::default(),
+            base: BaseSpec::default(),
+            settle: SettleSpec::default(),
+            time_cap: 3.0,
+            wall_time_cap: None,
+            max_escaped_fraction: default_max_escaped(),
+            time_step_rayleigh_fraction: default_rayleigh_fraction(),
+            seed: 1,
+            measure: MeasureSettings::default(),
+        }
+    }
+
+    /// A small heap for tests (1.25 mm grains, 12 g, outlet lowered to 65 mm; the funnel
+    /// otherwise unscaled: its 17 mm outlet is 6.8 grain diameters).
+    pub fn fast() -> AorSpec {
+        let mut spec = AorSpec::paper();
+        spec.particle = SizeDistributionSpec::Fixed { radius: 0.00125 };
+        spec.total_mass = 0.012;
+        spec.funnel.outlet_height = 0.065;
+        spec.funnel.segments = 32;
+        spec.base.size = 0.2;
+        spec.time_cap = 1.5;
+        spec
+    }
+
+    /// `default` or `fast`.
+    pub fn preset(name: &str) -> Result<AorSpec, SpecError> {
+        match name {
+            "default" | "paper" => Ok(AorSpec::paper()),
+            "fast" => Ok(AorSpec::fast()),
+            other => Err(invalid(
+                "preset",
+                format!("unknown preset {other:?} (presets: {})", PRESETS.join(", ")),
+            )),
+        }
+    }
+
+    /// Parses a JSON spec document.
+    pub fn from_json(text: &str) -> Result<AorSpec, SpecError> {
+        serde_json::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))
+    }
+
+    /// Pretty JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("an AorSpec always serialises")
+    }
+
+    /// Sets the field at the dotted `path` to `value` (JSON if it parses as JSON, else a string).
+    ///
+    /// Works on the JSON form of the spec, so every field is addressable without a hand-kept
+    /// list: the spec is serialised, the value replaced, and the result deserialised back (which
+    /// type-checks the new value). Unknown paths are an error naming the path and listing the
+    /// valid keys at the level where the walk stopped. The spec is unchanged on error.
+    pub fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError> {
+        let parsed: Value =
+            serde_json::from_str(value).unwrap_or_else(|_| Value::String(value.to_owned()));
+        let mut doc = serde_json::to_value(&*self).expect("an AorSpec always serialises");
+        let mut node = &mut doc;
+        let keys: Vec<&str> = path.split('.').collect();
+        for key in &keys {
+            let Value::Object(map) = node else {
+                return Err(SpecError::UnknownPath {
+                    path: path.to_owned(),
+                    key: (*key).to_owned(),
+                    valid: "(none: the parent is not an object)".into(),
+                });
+            };
+            if !map.contains_key(*key) {
+                let mut valid = String::new();
+                for (i, k) in map.keys().enumerate() {
+                    let _ = write!(valid, "{}{k}", if i > 0 { ", " } else { "" });
+                }
+                return Err(SpecError::UnknownPath {
+                    path: path.to_owned(),
+                    key: (*key).to_owned(),
+                    valid,
+                });
+            }
+            node = map.get_mut(*key).expect("checked");
+        }
+        *node = parsed;
+        let updated: AorSpec = serde_json::from_value(doc).map_err(|e| SpecError::BadValue {
+            path: path.to_owned(),
+            value: value.to_owned(),
+            reason: e.to_string(),
+        })?;
+        *self = updated;
+        Ok(())
+    }
+
+    /// Applies `key=value` assignments in order.
+    pub fn apply_assignments<'a>(
+        &mut self,
+        assignments: impl IntoIterator<Item = &'a str>,
+    ) -> Result<(), SpecError> {
+        for a in assignments {
+            let (key, value) = a
+                .split_once('=')
+                .ok_or_else(|| SpecError::NotAnAssignment(a.to_owned()))?;
+            self.set(key.trim(), value.trim())?;
+        }
+        Ok(())
+    }
+
+    /// The engine material set (soil = material 0, steel = material 1).
+    pub fn material_set(&self) -> MaterialSet {
+        let mut set = MaterialSet::paper(self.soil_soil, self.soil_steel);
+        for (m, props) in set
+            .materials
+            .iter_mut()
+            .zip([self.materials.soil, self.materials.steel])
+        {
+            m.density = props.density;
+            m.youngs_modulus = props.youngs_modulus;
+            m.poisson = props.poisson;
+        }
+        set
+    }
+
+    /// The engine rolling model.
+    pub fn engine_rolling_model(&self) -> RollingModel {
+        match self.rolling_model {
+            RollingSpec::Cdt => RollingModel::ConstantDirectionalTorque,
+            RollingSpec::Epsd => RollingModel::ElasticPlasticSpringDashpot {
+                viscous_damping: self.epsd_viscous_damping,
+            },
+        }
+    }
+
+    /// Checks what the engine does not check itself (the engine validates materials, meshes and
+    /// the factory when the world is built).
+    pub fn validate(&self) -> Result<(), SpecError> {
+        let positive = |path: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(invalid(path, format!("must be finite and > 0, got {v}")))
+            }
+        };
+        positive("total_mass", self.total_mass)?;
+        positive("mass_rate", self.mass_rate)?;
+        positive("time_cap", self.time_cap)?;
+        positive("base.size", self.base.size)?;
+        positive("settle.check_interval", self.settle.check_interval)?;
+        positive(
+            "settle.kinetic_energy_threshold",
+            self.settle.kinetic_energy_threshold,
+        )?;
+        positive(
+            "settle.angle_tolerance_deg",
+            self.settle.angle_tolerance_deg,
+        )?;
+        if !(self.settle.min_time.is_finite() && self.settle.min_time >= 0.0) {
+            return Err(invalid("settle.min_time", "must be finite and >= 0"));
+        }
+        if self.settle.angle_window < 2 {
+            return Err(invalid("settle.angle_window", "must be at least 2"));
+        }
+        if !(self.inlet_speed.is_finite() && self.inlet_speed >= 0.0) {
+            return Err(invalid("inlet_speed", "must be finite and >= 0"));
+        }
+        if let Some(cap) = self.wall_time_cap {
+            positive("wall_time_cap", cap)?;
+        }
+        if !(self.max_escaped_fraction >= 0.0 && self.max_escaped_fraction <= 1.0) {
+            return Err(invalid("max_escaped_fraction", "must be in [0, 1]"));
+        }
+        let f = self.time_step_rayleigh_fraction;
+        if !(f > 0.0 && f <= 1.0) {
+            return Err(invalid(
+                "time_step_rayleigh_fraction",
+                format!("must be in (0, 1], got {f}"),
+            ));
+        }
+        if !["steel", "soil"].contains(&self.base.material.as_str()) {
+            return Err(invalid(
+                "base.material",
+                format!(
+                    "must be \"steel\" or \"soil\", got {:?}",
+                    self.base.material
+                ),
+            ));
+        }
+        match self.protocol {
+            Protocol::Funnel => {
+                positive("funnel.outlet_diameter", self.funnel.outlet_diameter)?;
+                positive("funnel.outlet_height", self.funnel.outlet_height)?;
+                positive("funnel.cone_height", self.funnel.cone_height)?;
+                let a = self.funnel.wall_inclination_deg;
+                if !(a > 0.0 && a < 90.0) {
+                    return Err(invalid(
+                        "funnel.wall_inclination_deg",
+                        "must be strictly between 0 and 90",
+                    ));
+                }
+                if self.funnel.top_diameter() >= self.base.size {
+                    return Err(invalid(
+                        "base.size",
+                        "must exceed the funnel's top diameter",
+                    ));
+                }
+            }
+            Protocol::LiftedCylinder => {
+                positive("cylinder.inner_diameter", self.cylinder.inner_diameter)?;
+                positive("cylinder.height", self.cylinder.height)?;
+                positive("cylinder.lift_speed", self.cylinder.lift_speed)?;
+                if !(self.cylinder.fill_settle_time >= 0.0) {
+                    return Err(invalid("cylinder.fill_settle_time", "must be >= 0"));
+                }
+                if self.cylinder.inner_diameter >= self.base.size {
+                    return Err(invalid("base.size", "must exceed the cylinder's diameter"));
+                }
+            }
+        }
+        Ok(())
+    }
+}
