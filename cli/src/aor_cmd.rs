@@ -69,7 +69,7 @@ fn merge(base: serde_json::Value, over: serde_json::Value) -> serde_json::Value 
             for (k, v) in o {
                 let merged = match b.remove(&k) {
                     // A tagged enum given whole (e.g. `particle`) replaces the old one.
-                    Some(old) if !v.get("kind").is_some() => merge(old, v),
+                    Some(old) if v.get("kind").is_none() => merge(old, v),
                     _ => v,
                 };
                 b.insert(k, merged);

@@ -1,0 +1,123 @@
+//! The angle-of-repose virtual experiment end to end, on the `fast` preset (a ~1 380-grain heap
+//! of 2.5 mm spheres poured through the paper's funnel).
+//!
+//! Each heap takes ~30 s of one core in the test profile (engine and experiments are built with
+//! opt-level 3 there); the two monotonicity tests run two heaps each, on separate test threads.
+//! The engine is deterministic, so each comparison is exactly reproducible.
+
+use repose_experiments::aor::{run_aor, AorResult, AorSpec, Control, EndedBy, RunStatus};
+
+fn run(spec: &AorSpec) -> AorResult {
+    let mut last = 0.0;
+    let run = run_aor(spec, &mut |p| {
+        assert!(
+            p.fraction >= last - 1e-12 && p.fraction <= 1.0,
+            "progress {p:?}"
+        );
+        last = p.fraction;
+        Control::Continue
+    })
+    .expect("the fast preset builds");
+    let r = run.result;
+    eprintln!(
+        "soil_soil {} -> status {:?} angle {:?} (left {:?}, right {:?}) ended_by {:?} t {:.3} s \
+         steps {} wall {:.1} s grains {:?}",
+        serde_json::to_string(&spec.soil_soil).unwrap(),
+        r.status,
+        r.angle_deg,
+        r.left_deg,
+        r.right_deg,
+        r.ended_by,
+        r.simulated_time_s,
+        r.steps,
+        r.wall_time_s,
+        r.grains
+    );
+    // Every fast heap forms, comes to rest and keeps (nearly) all its grains.
+    assert_eq!(r.status, RunStatus::Ok, "{r:?}");
+    assert!(r.came_to_rest);
+    assert!(matches!(
+        r.ended_by,
+        EndedBy::KineticEnergy | EndedBy::AngleStable
+    ));
+    assert!(r.grains.inserted.mass > 0.99 * spec.total_mass - 1e-4);
+    assert!(r.grains.on_pile.count as f64 > 0.8 * r.grains.inserted.count as f64);
+    assert_eq!(r.grains.held_up.count, 0, "the funnel drained");
+    assert!(r.pile_height_m.unwrap() > 0.005 && r.base_diameter_m.unwrap() > 0.02);
+    r
+}
+
+fn angle_with(set: &[(&str, &str)]) -> f64 {
+    let mut spec = AorSpec::fast();
+    for (k, v) in set {
+        spec.set(k, v).unwrap();
+    }
+    let a = run(&spec).angle_deg.expect("ok runs have an angle");
+    assert!((5.0..60.0).contains(&a), "angle {a}");
+    a
+}
+
+#[test]
+fn angle_rises_with_soil_soil_rolling_friction() {
+    let low = angle_with(&[("soil_soil.rolling_friction", "0.01")]);
+    let high = angle_with(&[("soil_soil.rolling_friction", "0.40")]);
+    eprintln!("rolling friction 0.01 -> {low:.2}°, 0.40 -> {high:.2}°");
+    assert!(high > low + 3.0, "{low} -> {high}");
+}
+
+#[test]
+fn angle_rises_with_soil_soil_static_friction() {
+    let low = angle_with(&[("soil_soil.static_friction", "0.44")]);
+    let high = angle_with(&[("soil_soil.static_friction", "0.68")]);
+    eprintln!("static friction 0.44 -> {low:.2}°, 0.68 -> {high:.2}°");
+    assert!(high > low + 0.5, "{low} -> {high}");
+}
+
+#[test]
+fn cancelled_run_reports_cancelled_without_angle() {
+    let spec = AorSpec::fast();
+    let mut calls = 0;
+    let run = run_aor(&spec, &mut |_| {
+        calls += 1;
+        if calls > 3 {
+            Control::Cancel
+        } else {
+            Control::Continue
+        }
+    })
+    .unwrap();
+    assert_eq!(run.result.status, RunStatus::Cancelled);
+    assert_eq!(run.result.ended_by, EndedBy::Cancelled);
+    assert_eq!(run.result.angle_deg, None);
+    assert!(!run.result.came_to_rest);
+}
+
+#[test]
+fn grains_that_cannot_form_a_heap_are_reported_not_measured() {
+    // A tiny pour: a handful of grains is no heap, so no angle.
+    let mut spec = AorSpec::fast();
+    spec.set("total_mass", "0.0005").unwrap();
+    let run = run_aor(&spec, &mut |_| Control::Continue).unwrap();
+    assert_eq!(
+        run.result.status,
+        RunStatus::MeasurementFailed,
+        "{:?}",
+        run.result
+    );
+    assert_eq!(run.result.angle_deg, None);
+    assert!(run.result.message.is_some());
+    assert!(run.pile_svg().is_none());
+}
+
+#[test]
+fn escaped_grains_make_an_escaped_run() {
+    // A plate barely wider than the funnel: the heap spills over its edge.
+    let mut spec = AorSpec::fast();
+    spec.set("base.size", "0.065").unwrap();
+    spec.set("total_mass", "0.01").unwrap();
+    let run = run_aor(&spec, &mut |_| Control::Continue).unwrap();
+    let r = &run.result;
+    assert!(r.grains.escaped.count > 0, "{r:?}");
+    assert_eq!(r.status, RunStatus::Escaped, "{r:?}");
+    assert_eq!(r.angle_deg, None);
+}
