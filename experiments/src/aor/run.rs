@@ -274,7 +274,7 @@ fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
             };
             let fill_time = spec.total_mass / spec.mass_rate + (2.0 * z_max / g).sqrt();
             let lift_start = fill_time + c.fill_settle_time;
-            let lift_end = lift_start + c.height / c.lift_speed;
+            let lift_end = lift_start + c.lift_height / c.lift_speed;
             (
                 mesh,
                 region,
@@ -288,7 +288,7 @@ fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
         Protocol::Funnel => Motion::stationary(Pose::identity()),
         Protocol::LiftedCylinder => {
             let c = &spec.cylinder;
-            let start = ready_after - c.height / c.lift_speed;
+            let start = ready_after - c.lift_height / c.lift_speed;
             Motion::new(
                 Pose::identity(),
                 vec![TranslationSegment {

@@ -21,7 +21,7 @@
 //! | `total_mass`, `mass_rate` | kg, kg/s | 0.05, 0.15 |
 //! | `inlet_speed` | downward speed of new grains, m/s | 0.5 |
 //! | `funnel.wall_inclination_deg` / `.outlet_diameter` / `.outlet_height` / `.cone_height` / `.segments` | funnel | 60 / 0.017 / 0.105 / 0.04 / 48 |
-//! | `cylinder.inner_diameter` / `.height` / `.lift_speed` / `.fill_settle_time` / `.segments` | lifted tube | 0.04 / 0.08 / 0.05 / 0.3 / 48 |
+//! | `cylinder.inner_diameter` / `.height` / `.lift_speed` / `.lift_height` / `.fill_settle_time` / `.segments` | lifted tube | 0.04 / 0.06 / 0.1 / 0.04 / 0.3 / 48 |
 //! | `base.material` / `base.size` | base plate (`steel` or `soil`), square side, m | steel / 0.3 |
 //! | `settle.min_time` / `.check_interval` / `.kinetic_energy_threshold` / `.angle_tolerance_deg` / `.angle_window` | at-rest criteria | 0.1 / 0.1 / 1e-4 / 0.3 / 3 |
 //! | `time_cap` | simulated time after insertion ends before giving up, s | 3.0 |
@@ -200,6 +200,9 @@ pub struct CylinderGeometry {
     pub height: f64,
     /// Upward speed of the tube, m/s.
     pub lift_speed: f64,
+    /// How far the tube is lifted, m (enough to clear the fill; lifting the full height would
+    /// only cost simulated time).
+    pub lift_height: f64,
     /// Time between the end of insertion and the start of the lift, s (the fill settles).
     pub fill_settle_time: f64,
     pub segments: usize,
@@ -209,8 +212,9 @@ impl Default for CylinderGeometry {
     fn default() -> Self {
         CylinderGeometry {
             inner_diameter: 0.04,
-            height: 0.08,
-            lift_speed: 0.05,
+            height: 0.06,
+            lift_speed: 0.1,
+            lift_height: 0.04,
             fill_settle_time: 0.3,
             segments: 48,
         }
@@ -577,6 +581,7 @@ impl AorSpec {
                 positive("cylinder.inner_diameter", self.cylinder.inner_diameter)?;
                 positive("cylinder.height", self.cylinder.height)?;
                 positive("cylinder.lift_speed", self.cylinder.lift_speed)?;
+                positive("cylinder.lift_height", self.cylinder.lift_height)?;
                 if !(self.cylinder.fill_settle_time >= 0.0) {
                     return Err(invalid("cylinder.fill_settle_time", "must be >= 0"));
                 }
