@@ -17,6 +17,14 @@ use crate::particles::{Particles, NEW_PARTICLE};
 /// partitioning never changes results.
 pub(crate) const CHUNK: usize = 512;
 
+/// Top bit of a [`PairList::partner`] entry: the pair was in contact at the last force
+/// evaluation (or, right after a build, carries a non-zero history). When it is clear, the
+/// pair's histories are zero and its partner share is stale (not read), so a pair within the
+/// skin but not touching costs no writes.
+pub(crate) const IN_CONTACT: u32 = 1 << 31;
+/// The particle index bits of a [`PairList::partner`] entry.
+pub(crate) const PARTNER_INDEX: u32 = !IN_CONTACT;
+
 /// The simulation box. Particles leaving it through a non-periodic face are removed.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Domain {
@@ -115,13 +123,15 @@ pub(crate) struct PartnerShare {
 pub(crate) struct PairList {
     /// CSR offsets, length n + 1: the pairs whose lower index is i.
     pub first_pair: Vec<u32>,
-    /// The higher index j of each pair.
+    /// The higher index j of each pair ([`PARTNER_INDEX`] bits) and the pair's
+    /// [`IN_CONTACT`] flag.
     pub partner: Vec<u32>,
     /// Tangential spring δt of each pair, for i (j's is the negative).
     pub tangential: Vec<Vec3>,
     /// EPSD rolling spring torque on i (empty unless EPSD is used).
     pub rolling: Vec<Vec3>,
-    /// Contributions to the higher-index particle, written by the contact loop.
+    /// Contributions to the higher-index particle, written by the contact loop for the pairs
+    /// in contact (see [`IN_CONTACT`]).
     pub partner_share: Vec<PartnerShare>,
     /// CSR offsets, length n + 1: the pairs in which particle k is the higher index j.
     pub incidence_start: Vec<u32>,
@@ -156,7 +166,7 @@ impl PairList {
         let start = range.start;
         self.partner[range]
             .iter()
-            .position(|&j| j == hi)
+            .position(|&j| j & PARTNER_INDEX == hi)
             .map(|k| (start + k, swapped))
     }
 }
@@ -399,6 +409,9 @@ pub(crate) fn build_pair_list(
                         }
                         None => (Vec3::zeros(), Vec3::zeros()),
                     };
+                    if t != Vec3::zeros() || r != Vec3::zeros() {
+                        out.partner[k] |= IN_CONTACT;
+                    }
                     out.tangential.push(t);
                     if with_rolling_history {
                         out.rolling.push(r);
@@ -433,13 +446,14 @@ pub(crate) fn build_pair_list(
     }
     // Incidence CSR (pairs where k is the higher index), pair indices ascending.
     for &j in &list.partner {
-        list.incidence_start[j as usize + 1] += 1;
+        list.incidence_start[(j & PARTNER_INDEX) as usize + 1] += 1;
     }
     for k in 0..n {
         list.incidence_start[k + 1] += list.incidence_start[k];
     }
     let mut fill = list.incidence_start.clone();
     for (p, &j) in list.partner.iter().enumerate() {
+        let j = j & PARTNER_INDEX;
         list.incidence_pair[fill[j as usize] as usize] = p as u32;
         fill[j as usize] += 1;
     }

@@ -24,7 +24,9 @@ use crate::material::{
 };
 use crate::math::{Pose, Vec3};
 use crate::mesh::{MeshContact, TriMesh};
-use crate::neighbor::{build_pair_list, CellGrid, Domain, PairList, PartnerShare, CHUNK};
+use crate::neighbor::{
+    build_pair_list, CellGrid, Domain, PairList, PartnerShare, CHUNK, IN_CONTACT, PARTNER_INDEX,
+};
 use crate::particles::{double, single, ParticleSpec, Particles, WallHistory};
 
 /// Simulation settings.
@@ -443,7 +445,7 @@ impl World {
                 self.pairs.partner[range]
                     .iter()
                     .filter(|&&j| {
-                        let j = j as usize;
+                        let j = (j & PARTNER_INDEX) as usize;
                         let dist = d.minimum_image(p.position[i] - p.position[j]).norm();
                         dist < p.radius[i] + p.radius[j]
                     })
@@ -746,7 +748,7 @@ impl World {
                     &ctx,
                     &reads,
                     i,
-                    &pl.partner[own.clone()],
+                    &mut pl.partner[own.clone()],
                     &mut pl.tangential[own.clone()],
                     rolling,
                     &mut pl.partner_share[own],
@@ -768,6 +770,7 @@ impl World {
                     tq,
                     moment,
                     &pl.incidence_pair[incident],
+                    &pl.partner,
                     &pl.partner_share,
                     p.mass[i],
                     p.inverse_inertia[i],
@@ -797,7 +800,6 @@ impl World {
         let n = particles.len();
         let p = &mut particles;
         let first_pair = &pairs.first_pair;
-        let partner = &pairs.partner;
         let use_rolling_spring = !pairs.rolling.is_empty();
 
         // Split the per-pair and per-particle output arrays into per-chunk slices.
@@ -806,6 +808,7 @@ impl World {
             tangential: &'a mut [Vec3],
             rolling: &'a mut [Vec3],
             share: &'a mut [PartnerShare],
+            partner: &'a mut [u32],
             force: &'a mut [Vec3],
             torque: &'a mut [Vec3],
             moment: &'a mut [f64],
@@ -816,6 +819,7 @@ impl World {
             let mut tangential: &mut [Vec3] = &mut pairs.tangential;
             let mut rolling: &mut [Vec3] = &mut pairs.rolling;
             let mut share: &mut [PartnerShare] = &mut pairs.partner_share;
+            let mut partner: &mut [u32] = &mut pairs.partner;
             let mut force: &mut [Vec3] = &mut p.force;
             let mut torque: &mut [Vec3] = &mut p.torque;
             let mut moment: &mut [f64] = &mut rolling_moment;
@@ -834,6 +838,8 @@ impl World {
                 rolling = rest;
                 let (c, rest) = std::mem::take(&mut share).split_at_mut(pair_count);
                 share = rest;
+                let (h, rest) = std::mem::take(&mut partner).split_at_mut(pair_count);
+                partner = rest;
                 let (d, rest) = std::mem::take(&mut force).split_at_mut(end - start);
                 force = rest;
                 let (e, rest) = std::mem::take(&mut torque).split_at_mut(end - start);
@@ -847,6 +853,7 @@ impl World {
                     tangential: a,
                     rolling: b,
                     share: c,
+                    partner: h,
                     force: d,
                     torque: e,
                     moment: f,
@@ -885,7 +892,7 @@ impl World {
                         &ctx,
                         &reads,
                         i,
-                        &partner[first_pair[i] as usize..first_pair[i + 1] as usize],
+                        &mut task.partner[own.clone()],
                         &mut task.tangential[own.clone()],
                         rolling,
                         &mut task.share[own],
@@ -945,6 +952,7 @@ impl World {
                         torque,
                         moment[i],
                         &pairs.incidence_pair[range],
+                        &pairs.partner,
                         &pairs.partner_share,
                         mass[i],
                         inverse_inertia[i],
@@ -1020,7 +1028,7 @@ fn particle_contacts(
     ctx: &ContactContext,
     r: &ParticleReads,
     i: usize,
-    partner: &[u32],
+    partner: &mut [u32],
     tangential: &mut [Vec3],
     rolling: &mut [Vec3],
     share: &mut [PartnerShare],
@@ -1042,20 +1050,24 @@ fn particle_contacts(
     let mut f = ctx.gravity * mi;
     let mut tq = Vec3::zeros();
     let mut moment = 0.0;
-    for (local, &j) in partner.iter().enumerate() {
-        let j = j as usize;
+    for (local, entry) in partner.iter_mut().enumerate() {
+        let j = (*entry & PARTNER_INDEX) as usize;
         let rj = r.radius[j];
         let d = domain.minimum_image(xi - r.position[j]);
         let dist2 = d.norm_squared();
         let rsum = ri + rj;
         if dist2 >= rsum * rsum {
-            tangential[local] = Vec3::zeros();
-            if use_rolling_spring {
-                rolling[local] = Vec3::zeros();
+            // Not touching: histories are reset (only if set), the share is left stale.
+            if *entry & IN_CONTACT != 0 {
+                *entry &= PARTNER_INDEX;
+                tangential[local] = Vec3::zeros();
+                if use_rolling_spring {
+                    rolling[local] = Vec3::zeros();
+                }
             }
-            share[local] = PartnerShare::default();
             continue;
         }
+        *entry |= IN_CONTACT;
         let dist = dist2.sqrt();
         // One division, not nalgebra's three for `d / dist`.
         let normal = d * (1.0 / dist);
@@ -1208,7 +1220,8 @@ fn particle_contacts(
     (f, tq, moment)
 }
 
-/// Particle i adds the shares of the pairs it is the higher index of (`incident`) to its own
+/// Particle i adds the shares of the pairs in contact it is the higher index of (`incident`,
+/// flagged in `partner`) to its own
 /// force, torque and CDT moment, applies CDT rolling friction, then integrates. Returns
 /// whether it moved far enough (or out of the domain) to need a rebuild.
 #[inline(always)]
@@ -1219,6 +1232,7 @@ fn gather_particle(
     mut torque: Vec3,
     mut rolling: f64,
     incident: &[u32],
+    partner: &[u32],
     shares: &[PartnerShare],
     mass: f64,
     inv_i: f64,
@@ -1228,6 +1242,9 @@ fn gather_particle(
     let dt = g.dt;
     let domain = &g.domain;
     for &pair in incident {
+        if partner[pair as usize] & IN_CONTACT == 0 {
+            continue;
+        }
         let share = &shares[pair as usize];
         force += share.force;
         torque += share.torque;
