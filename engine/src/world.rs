@@ -1362,6 +1362,31 @@ mod tests {
         world
     }
 
+    /// Per-step cost of a tiny scene (44 particles over a floor): `cargo test --release -p
+    /// repose-engine --lib small_scene_step_cost -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn small_scene_step_cost() {
+        let mut world = cloud(
+            RollingModel::ConstantDirectionalTorque,
+            Integrator::SymplecticEuler,
+        );
+        let keep: Vec<u32> = (0..44).collect();
+        world.particles.permute(&keep);
+        world.rolling_moment.truncate(44);
+        world.needs_rebuild = true;
+        world.run(100);
+        let start = std::time::Instant::now();
+        let steps = 20_000;
+        world.run(steps);
+        let per_step = start.elapsed().as_secs_f64() / steps as f64;
+        println!(
+            "44 particles: {:.2} us per step (wall), {} rebuilds",
+            per_step * 1e6,
+            world.rebuild_count()
+        );
+    }
+
     /// The fused sequential sweep (one thread) and the parallel passes (two threads, more
     /// than `SEQUENTIAL_BELOW` chunks) must give bit-identical states and geometry loads.
     #[test]
