@@ -582,7 +582,8 @@ impl AorSpec {
                 positive("cylinder.height", self.cylinder.height)?;
                 positive("cylinder.lift_speed", self.cylinder.lift_speed)?;
                 positive("cylinder.lift_height", self.cylinder.lift_height)?;
-                if !(self.cylinder.fill_settle_time >= 0.0) {
+                let settle = self.cylinder.fill_settle_time;
+                if !(settle.is_finite() && settle >= 0.0) {
                     return Err(invalid("cylinder.fill_settle_time", "must be >= 0"));
                 }
                 if self.cylinder.inner_diameter >= self.base.size {
