@@ -1,4 +1,507 @@
-//! Wire types shared by the server, the workers and the command line.
+//! Wire types of the repose job server, shared by the server, the workers and the command line.
 //!
-//! Not built yet: the job protocol arrives with the job-server issue. The crate exists so
-//! the workspace has its final shape; it deliberately exports nothing.
+//! Everything here is plain data plus pure helpers (no I/O), so a worker can depend on this
+//! crate without pulling in the server's database or HTTP stack.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use uuid::Uuid;
+
+pub mod spec_path;
+
+pub use spec_path::{apply_factor_values, SpecPathError};
+
+// ---------------------------------------------------------------------------------------------
+// Submissions
+// ---------------------------------------------------------------------------------------------
+
+/// A calibration batch: one experiment template, the factors to vary and the design to run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BatchRequest {
+    /// Human-readable label, e.g. `"sand AOR screening"`.
+    pub name: String,
+    /// The simulation every run starts from.
+    pub experiment: ExperimentTemplate,
+    /// Parameters to vary, each bound to a dotted path in `experiment.spec`.
+    pub factors: Vec<FactorSpec>,
+    /// Which runs to simulate.
+    pub design: DesignRequest,
+    /// Copies of every design point, each with its own seed (default 1).
+    #[serde(default = "default_replicates")]
+    pub replicates: u32,
+    /// Metric reported by the workers that the model is fitted to, e.g. `"angle_deg"`.
+    pub response: String,
+    /// Regression model fitted when the batch finishes.
+    pub model: ModelName,
+    /// Desired response value; when set, the analysis searches for the settings that hit it.
+    #[serde(default)]
+    pub target: Option<f64>,
+    /// Base seed for run order and per-run seeds; chosen by the server when absent.
+    #[serde(default)]
+    pub seed: Option<u64>,
+}
+
+fn default_replicates() -> u32 {
+    1
+}
+
+/// The experiment every run of a batch is a variation of.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentTemplate {
+    /// Experiment type understood by the workers: `aor`, `drill`, `table_lookup`, …
+    pub kind: String,
+    /// The experiment's own document; factor values are written into it at their paths.
+    pub spec: Value,
+}
+
+/// One varied parameter and its natural range.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FactorSpec {
+    /// Factor name used in the design, the model terms and the reports.
+    pub name: String,
+    /// Dotted path into the experiment spec, e.g. `material.friction` or `particles.0.radius`.
+    pub path: String,
+    /// Natural value at coded -1.
+    pub low: f64,
+    /// Natural value at coded +1.
+    pub high: f64,
+}
+
+/// How to choose the design points.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum DesignRequest {
+    /// Two-level full factorial (2^k runs).
+    Factorial,
+    /// Plackett–Burman screening design; `runs` defaults to the smallest size that fits.
+    PlackettBurman {
+        /// 8, 12, 16, 20 or 24.
+        #[serde(default)]
+        runs: Option<usize>,
+    },
+    /// Box–Behnken design; `centre_points` defaults to the textbook count for k factors.
+    BoxBehnken {
+        /// Centre-point runs appended after the edge runs.
+        #[serde(default)]
+        centre_points: Option<usize>,
+    },
+    /// Central composite design.
+    CentralComposite {
+        /// Where the star points sit.
+        variant: CcdVariantName,
+        /// Centre-point runs appended at the end.
+        centre_points: usize,
+    },
+    /// Points given by the user, in natural units, one value per factor in factor order.
+    Explicit {
+        /// Rows of natural factor values.
+        points: Vec<Vec<f64>>,
+    },
+}
+
+/// Placement of a central composite design's star points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CcdVariantName {
+    /// Rotatable, star points outside the ranges.
+    Circumscribed,
+    /// Star points on the cube faces.
+    FaceCentred,
+    /// Rotatable, shrunk so the star points sit at the range limits.
+    Inscribed,
+}
+
+/// Regression model families.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ModelName {
+    /// Intercept and main effects.
+    #[serde(rename = "linear")]
+    Linear,
+    /// Main effects and two-factor interactions.
+    #[serde(rename = "2fi")]
+    TwoFactorInteraction,
+    /// Full second-order model.
+    #[serde(rename = "quadratic")]
+    Quadratic,
+}
+
+/// Reply to a successful submission.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchCreated {
+    /// The new batch.
+    pub id: Uuid,
+    /// Number of runs (design points × replicates), one job each.
+    pub run_count: usize,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Progress views
+// ---------------------------------------------------------------------------------------------
+
+/// Life cycle of a batch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BatchState {
+    /// Runs remain queued or running.
+    Active,
+    /// Every run finished (completed or dead); the analysis is available.
+    Completed,
+    /// Cancelled by a user; unfinished runs will not be executed.
+    Cancelled,
+}
+
+/// Life cycle of one run (one job).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunState {
+    /// Waiting for a worker (possibly after a retry back-off).
+    Queued,
+    /// Leased by a worker.
+    Running,
+    /// A result is stored.
+    Completed,
+    /// Failed `max_attempts` times; will not be retried.
+    Dead,
+    /// Its batch was cancelled before it finished.
+    Cancelled,
+}
+
+impl RunState {
+    /// The spelling used in JSON, CSV and the database.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RunState::Queued => "queued",
+            RunState::Running => "running",
+            RunState::Completed => "completed",
+            RunState::Dead => "dead",
+            RunState::Cancelled => "cancelled",
+        }
+    }
+}
+
+/// Number of runs in each state.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StateCounts {
+    /// Waiting for a worker.
+    pub queued: u64,
+    /// Leased by a worker.
+    pub running: u64,
+    /// Result stored.
+    pub completed: u64,
+    /// Gave up after too many failures.
+    pub dead: u64,
+    /// Cancelled with the batch.
+    pub cancelled: u64,
+}
+
+impl StateCounts {
+    /// All runs of the batch.
+    pub fn total(&self) -> u64 {
+        self.queued + self.running + self.completed + self.dead + self.cancelled
+    }
+
+    /// Runs that will not change any more.
+    pub fn finished(&self) -> u64 {
+        self.completed + self.dead + self.cancelled
+    }
+}
+
+/// One line of the batch list.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchSummary {
+    /// Batch id.
+    pub id: Uuid,
+    /// Label given at submission.
+    pub name: String,
+    /// Experiment type.
+    pub kind: String,
+    /// Life cycle state.
+    pub state: BatchState,
+    /// Submission time, Unix milliseconds.
+    pub created_at_ms: i64,
+    /// Runs per state.
+    pub counts: StateCounts,
+    /// Finished runs as a percentage of all runs.
+    pub percent_done: f64,
+}
+
+/// Detailed progress of one batch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchStatus {
+    /// Identity, state and counts.
+    #[serde(flatten)]
+    pub summary: BatchSummary,
+    /// Response the model is fitted to.
+    pub response: String,
+    /// Model fitted at the end.
+    pub model: ModelName,
+    /// Mean wall time of the completed runs, seconds.
+    pub mean_wall_time_s: Option<f64>,
+    /// Estimated seconds until the last run finishes: mean wall time × remaining runs / runs in
+    /// flight (at least one). `None` until a run has completed or when nothing remains.
+    pub eta_s: Option<f64>,
+    /// Whether `GET /v1/batches/{id}/analysis` has a result.
+    pub analysis_ready: bool,
+}
+
+/// Value of one factor in one run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FactorValue {
+    /// Factor name.
+    pub name: String,
+    /// Coded value (-1 … +1 for the cube).
+    pub coded: f64,
+    /// Natural value written into the spec.
+    pub natural: f64,
+}
+
+/// One run with its settings and, once finished, its result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunView {
+    /// Run id.
+    pub id: Uuid,
+    /// Position in the (randomised) run order.
+    pub run_index: u32,
+    /// Row of the design this run simulates.
+    pub design_row: u32,
+    /// Replicate number, from 0.
+    pub replicate: u32,
+    /// Factor settings in factor order.
+    pub factors: Vec<FactorValue>,
+    /// DEM random seed.
+    pub seed: u64,
+    /// Life cycle state.
+    pub status: RunState,
+    /// Leases handed out so far (released leases are not counted).
+    pub attempts: u32,
+    /// Reported metrics, once completed.
+    pub metrics: Option<BTreeMap<String, f64>>,
+    /// Wall time of the successful attempt, seconds.
+    pub wall_time_s: Option<f64>,
+    /// Worker that produced the result (or holds the lease).
+    pub worker_id: Option<Uuid>,
+    /// Last failure message.
+    pub last_error: Option<String>,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Worker protocol
+// ---------------------------------------------------------------------------------------------
+
+/// A worker introduces itself; re-registering with the same `instance_id` updates the record.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorkerRegistration {
+    /// Chosen by the worker at start-up; identifies it in claims and run records.
+    pub instance_id: Uuid,
+    /// Host name, for people reading the run table.
+    pub host: String,
+    /// Threads the worker runs each simulation with.
+    pub threads: u32,
+    /// Worker software version.
+    pub version: String,
+}
+
+/// Reply to a registration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorkerRegistered {
+    /// Id to send in claims (equal to the instance id).
+    pub worker_id: Uuid,
+    /// Lease length the server grants; heartbeat well within it.
+    pub lease_s: f64,
+}
+
+/// Ask for a job, waiting up to `wait_s` seconds (at most 30) for one to appear.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClaimRequest {
+    /// Registered worker id.
+    pub worker_id: Uuid,
+    /// Long-poll duration; 0 answers at once.
+    #[serde(default)]
+    pub wait_s: f64,
+}
+
+/// A leased job: everything a worker needs to run one simulation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClaimResponse {
+    /// Job id, used in the heartbeat/complete/fail/release paths.
+    pub job_id: Uuid,
+    /// Proves ownership of the lease; send it with every update.
+    pub lease_token: Uuid,
+    /// Seconds until the lease expires unless renewed by a heartbeat.
+    pub lease_expires_in_s: f64,
+    /// The run this job computes.
+    pub run_id: Uuid,
+    /// The run's batch.
+    pub batch_id: Uuid,
+    /// Experiment type.
+    pub kind: String,
+    /// Experiment spec with this run's factor values written at their paths.
+    pub spec: Value,
+    /// DEM random seed of this run.
+    pub seed: u64,
+    /// Which lease this is for the job (1 for the first).
+    pub attempt: u32,
+}
+
+/// Periodic proof of life; renews the lease.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Heartbeat {
+    /// Token from the claim.
+    pub lease_token: Uuid,
+    /// Fraction done, 0..1.
+    #[serde(default)]
+    pub progress: f64,
+}
+
+/// Reply to a heartbeat.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeartbeatResponse {
+    /// Stop working: the batch was cancelled or the run already has a result.
+    pub cancel: bool,
+    /// Seconds until the renewed lease expires.
+    pub lease_expires_in_s: f64,
+}
+
+/// A finished simulation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Completion {
+    /// Token from the claim.
+    pub lease_token: Uuid,
+    /// Scalar results, e.g. `angle_deg`; must include the batch's response.
+    pub metrics: BTreeMap<String, f64>,
+    /// Time the simulation took, seconds.
+    pub wall_time_s: f64,
+    /// Anything else worth keeping (fit residuals, file names, …).
+    #[serde(default)]
+    pub details: Value,
+}
+
+/// A simulation that could not produce a result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Failure {
+    /// Token from the claim.
+    pub lease_token: Uuid,
+    /// What went wrong, for the run table.
+    pub error: String,
+}
+
+/// Give a job back without it counting as an attempt (e.g. the worker is shutting down).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Release {
+    /// Token from the claim.
+    pub lease_token: Uuid,
+}
+
+/// What happened to a job update.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JobUpdateResponse {
+    /// The run's state after the update.
+    pub status: RunState,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Analysis and errors
+// ---------------------------------------------------------------------------------------------
+
+/// Statistical analysis of a finished batch, computed once and stored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AnalysisView {
+    /// Batch analysed.
+    pub batch_id: Uuid,
+    /// Computation time, Unix milliseconds.
+    pub computed_at_ms: i64,
+    /// Response fitted.
+    pub response: String,
+    /// Model fitted.
+    pub model: ModelName,
+    /// Factor names in model order.
+    pub factors: Vec<String>,
+    /// Completed runs used in the fit.
+    pub runs_used: usize,
+    /// The fit (coefficients, ANOVA, fit statistics, diagnostics) as produced by `repose-doe`.
+    pub fit: Option<Value>,
+    /// Settings predicted to hit the target (only when the batch has a target).
+    pub optimum: Option<Value>,
+    /// Steepest-ascent (or descent, towards the target) path; linear models only.
+    pub steepest_path: Option<Value>,
+    /// Why the fit or a later step could not be computed.
+    pub error: Option<String>,
+}
+
+/// Body of every error reply.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ApiError {
+    /// Human-readable explanation.
+    pub error: String,
+    /// The offending request field, as a dotted path (e.g. `factors[1].low`), when one is to blame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub field: Option<String>,
+}
+
+/// Liveness reply of `GET /healthz`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Health {
+    /// Always `"ok"` when the server answers and its database responds.
+    pub status: String,
+    /// Server version.
+    pub version: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn batch_request_defaults_and_design_tags() {
+        let request: BatchRequest = serde_json::from_value(json!({
+            "name": "b",
+            "experiment": {"kind": "aor", "spec": {"mu": 0.5}},
+            "factors": [{"name": "mu", "path": "mu", "low": 0.2, "high": 0.8}],
+            "design": {"type": "box_behnken"},
+            "response": "angle_deg",
+            "model": "2fi"
+        }))
+        .unwrap();
+        assert_eq!(request.replicates, 1);
+        assert_eq!(request.model, ModelName::TwoFactorInteraction);
+        assert_eq!(
+            request.design,
+            DesignRequest::BoxBehnken {
+                centre_points: None
+            }
+        );
+        let ccd: DesignRequest = serde_json::from_value(json!({
+            "type": "central_composite", "variant": "face_centred", "centre_points": 3
+        }))
+        .unwrap();
+        assert_eq!(
+            ccd,
+            DesignRequest::CentralComposite {
+                variant: CcdVariantName::FaceCentred,
+                centre_points: 3
+            }
+        );
+    }
+
+    #[test]
+    fn unknown_design_is_rejected() {
+        let err = serde_json::from_value::<DesignRequest>(json!({"type": "latin_square"}));
+        assert!(err.is_err());
+    }
+
+    #[test]
+    fn api_error_omits_missing_field() {
+        let body = serde_json::to_string(&ApiError {
+            error: "x".into(),
+            field: None,
+        })
+        .unwrap();
+        assert_eq!(body, r#"{"error":"x"}"#);
+    }
+}

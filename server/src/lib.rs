@@ -1,1 +1,142 @@
-//! The job server (axum + SQLite). Not built yet: see the job-server issue.
+//! The repose job server: batches of DEM runs submitted over REST, leased to workers over HTTP,
+//! analysed when the last run finishes.
+//!
+//! Structure follows the axum examples: [`Config`] → [`AppState::open`] (database + migrations)
+//! → [`app`] (the router) → [`serve`] (listener + graceful shutdown). Only the `db` module touches SQL.
+//!
+//! ```no_run
+//! # async fn run() -> Result<(), repose_server::ServeError> {
+//! let config = repose_server::Config::new("repose.sqlite");
+//! let listener = tokio::net::TcpListener::bind(config.listen).await?;
+//! repose_server::serve(config, listener, async {
+//!     let _ = tokio::signal::ctrl_c().await;
+//! })
+//! .await
+//! # }
+//! ```
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::net::TcpListener;
+use tokio::sync::{watch, Notify};
+
+mod analysis;
+mod db;
+mod error;
+mod routes;
+mod submit;
+
+pub use error::AppError;
+pub use routes::app;
+
+/// Server settings; the command line fills this from its flags.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Address the command line binds; [`serve`] itself takes a ready listener.
+    pub listen: SocketAddr,
+    /// SQLite database file, created (with its schema) if missing.
+    pub db_path: PathBuf,
+    /// How long a claim or heartbeat keeps a job leased.
+    pub lease: Duration,
+    /// Leases a job may use up (failures and expiries) before it is marked dead.
+    pub max_attempts: u32,
+    /// Delay before the first retry of a failed job; doubles with each further attempt.
+    pub retry_backoff: Duration,
+    /// Largest accepted request body.
+    pub body_limit_bytes: usize,
+    /// Upper bound of a claim's long-poll wait.
+    pub max_claim_wait: Duration,
+}
+
+impl Config {
+    /// Defaults: listen on 127.0.0.1:8080, 60 s leases, 3 attempts, 5 s first back-off,
+    /// 8 MiB bodies, 30 s long-poll.
+    pub fn new(db_path: impl Into<PathBuf>) -> Self {
+        Config {
+            listen: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            db_path: db_path.into(),
+            lease: Duration::from_secs(60),
+            max_attempts: 3,
+            retry_backoff: Duration::from_secs(5),
+            body_limit_bytes: 8 * 1024 * 1024,
+            max_claim_wait: Duration::from_secs(30),
+        }
+    }
+}
+
+/// Why the server could not start or stopped abnormally.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// Opening the database failed.
+    #[error("opening the database: {0}")]
+    Database(#[from] sqlx::Error),
+    /// Applying the schema migrations failed.
+    #[error("migrating the database: {0}")]
+    Migrate(#[from] sqlx::migrate::MigrateError),
+    /// The listener failed.
+    #[error("serving HTTP: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Shared by every request handler; cheap to clone.
+#[derive(Debug, Clone)]
+pub struct AppState {
+    pub(crate) db: db::Db,
+    pub(crate) config: Arc<Config>,
+    /// Woken when jobs become claimable (submission, release, failure), ending long-polls early.
+    pub(crate) jobs_available: Arc<Notify>,
+    /// Flips to `true` at shutdown so long-polls return instead of holding the server open.
+    pub(crate) shutdown: watch::Receiver<bool>,
+    shutdown_sender: Arc<watch::Sender<bool>>,
+}
+
+impl AppState {
+    /// Opens (creating and migrating if needed) the database named in `config`.
+    pub async fn open(config: Config) -> Result<Self, ServeError> {
+        let db = db::Db::open(&config.db_path).await?;
+        let (shutdown_sender, shutdown) = watch::channel(false);
+        Ok(AppState {
+            db,
+            config: Arc::new(config),
+            jobs_available: Arc::new(Notify::new()),
+            shutdown,
+            shutdown_sender: Arc::new(shutdown_sender),
+        })
+    }
+
+    /// Ends pending long-polls; called by [`serve`] when its shutdown future resolves.
+    pub fn begin_shutdown(&self) {
+        self.shutdown_sender.send_replace(true);
+    }
+
+    /// Closes the database pools (flushing the WAL) once no request uses them any more.
+    pub async fn close(&self) {
+        self.db.close().await;
+    }
+}
+
+/// Runs the server on `listener` until `shutdown` resolves, then finishes in-flight requests,
+/// ends long-polls and closes the database.
+pub async fn serve(
+    config: Config,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServeError> {
+    let state = AppState::open(config).await?;
+    if let Ok(addr) = listener.local_addr() {
+        tracing::info!(%addr, db = %state.config.db_path.display(), "repose server listening");
+    }
+    let stopping = state.clone();
+    let result = axum::serve(listener, app(state.clone()))
+        .with_graceful_shutdown(async move {
+            shutdown.await;
+            stopping.begin_shutdown();
+        })
+        .await;
+    state.close().await;
+    result.map_err(ServeError::from)
+}

@@ -1,0 +1,956 @@
+//! All SQL of the server.
+//!
+//! SQLite in WAL mode with two pools: a single-connection *writer* pool, so write transactions
+//! queue inside the process instead of racing for SQLite's lock ("database is locked" never
+//! reaches a user), and a small read-only pool for the status views, which WAL lets run
+//! alongside the writer. Times are Unix milliseconds; JSON documents are stored as TEXT.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::str::FromStr;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use repose_api::{
+    AnalysisView, BatchState, BatchStatus, BatchSummary, ClaimResponse, Completion, FactorValue,
+    ModelName, RunState, RunView, StateCounts, WorkerRegistration,
+};
+use repose_doe::design::{DesignKind, Factor};
+use serde_json::Value;
+use sqlx::sqlite::{
+    SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow,
+    SqliteSynchronous,
+};
+use sqlx::{Row, Sqlite, Transaction};
+use uuid::Uuid;
+
+use crate::error::AppError;
+use crate::submit::PlannedBatch;
+
+/// How long a connection waits for SQLite's lock (another process, a checkpoint) before failing.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Read connections; status views are cheap, so a few suffice.
+const READ_CONNECTIONS: u32 = 4;
+
+/// Current time in Unix milliseconds.
+pub fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
+}
+
+fn duration_ms(duration: Duration) -> i64 {
+    i64::try_from(duration.as_millis()).unwrap_or(i64::MAX)
+}
+
+/// Handle to the database; cheap to clone.
+#[derive(Debug, Clone)]
+pub struct Db {
+    writer: SqlitePool,
+    reader: SqlitePool,
+}
+
+/// What the analysis needs to know about a batch.
+#[derive(Debug, Clone)]
+pub struct AnalysisInput {
+    /// Batch id.
+    pub batch_id: Uuid,
+    /// Life cycle state.
+    pub state: BatchState,
+    /// Factors in column order.
+    pub factors: Vec<Factor>,
+    /// How the design was built.
+    pub design_kind: DesignKind,
+    /// Response metric.
+    pub response: String,
+    /// Model family.
+    pub model: ModelName,
+    /// Target response, if any.
+    pub target: Option<f64>,
+    /// Base seed (reused for the optimum search).
+    pub base_seed: u64,
+    /// Coded settings and metrics of every completed run.
+    pub completed: Vec<(Vec<f64>, BTreeMap<String, f64>)>,
+}
+
+/// Result of a completion, failure or release.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct JobUpdate {
+    /// The job's batch.
+    pub batch_id: Uuid,
+    /// State of the run afterwards.
+    pub status: RunState,
+    /// This update finished the batch (its last unfinished job), so the analysis is due.
+    pub batch_finished: bool,
+    /// A job became claimable again.
+    pub requeued: bool,
+}
+
+/// Result of a heartbeat that was accepted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeartbeatOutcome {
+    /// The worker should stop.
+    pub cancel: bool,
+    /// Seconds until the lease expires.
+    pub lease_expires_in_s: f64,
+}
+
+/// The lease named by a worker, looked up together with its job and run.
+struct LeaseLookup {
+    outcome: Option<String>,
+    worker_id: String,
+    job_state: String,
+    current_token: Option<String>,
+    attempts: i64,
+    run_id: String,
+    batch_id: String,
+    has_result: bool,
+    response: String,
+}
+
+impl Db {
+    /// Opens or creates the database at `path` and applies the migrations.
+    pub async fn open(path: &Path) -> Result<Self, crate::ServeError> {
+        let options = SqliteConnectOptions::new()
+            .filename(path)
+            .create_if_missing(true)
+            .journal_mode(SqliteJournalMode::Wal)
+            .synchronous(SqliteSynchronous::Normal)
+            .busy_timeout(BUSY_TIMEOUT)
+            .foreign_keys(true);
+        let writer = SqlitePoolOptions::new()
+            .max_connections(1)
+            .connect_with(options.clone())
+            .await?;
+        sqlx::migrate!("../migrations").run(&writer).await?;
+        let reader = SqlitePoolOptions::new()
+            .max_connections(READ_CONNECTIONS)
+            .connect_with(options.read_only(true))
+            .await?;
+        Ok(Db { writer, reader })
+    }
+
+    /// Closes both pools.
+    pub async fn close(&self) {
+        self.reader.close().await;
+        self.writer.close().await;
+    }
+
+    /// A trivial query, for the health check.
+    pub async fn ping(&self) -> Result<(), AppError> {
+        sqlx::query("SELECT 1").execute(&self.reader).await?;
+        Ok(())
+    }
+
+    // -----------------------------------------------------------------------------------------
+    // Batches
+    // -----------------------------------------------------------------------------------------
+
+    /// Stores a validated batch with one run and one queued job per planned run.
+    pub async fn insert_batch(&self, plan: &PlannedBatch) -> Result<Uuid, AppError> {
+        let batch_id = Uuid::new_v4();
+        let now = now_ms();
+        let request = &plan.request;
+        let mut tx = self.writer.begin().await?;
+        sqlx::query(
+            "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
+                                  target, base_seed, state, created_at)
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?)",
+        )
+        .bind(batch_id.to_string())
+        .bind(&request.name)
+        .bind(&request.experiment.kind)
+        .bind(serde_json::to_string(request)?)
+        .bind(serde_json::to_string(&plan.factors)?)
+        .bind(serde_json::to_string(&plan.design_kind)?)
+        .bind(&request.response)
+        .bind(model_to_db(request.model))
+        .bind(request.target)
+        .bind(plan.base_seed as i64)
+        .bind(now)
+        .execute(&mut *tx)
+        .await?;
+        for run in &plan.runs {
+            let run_id = Uuid::new_v4().to_string();
+            sqlx::query(
+                "INSERT INTO runs (id, batch_id, run_index, design_row, replicate, coded, natural,
+                                   seed, spec)
+                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            )
+            .bind(&run_id)
+            .bind(batch_id.to_string())
+            .bind(run.run_index as i64)
+            .bind(run.design_row as i64)
+            .bind(run.replicate as i64)
+            .bind(serde_json::to_string(&run.coded)?)
+            .bind(serde_json::to_string(&run.natural)?)
+            .bind(run.seed as i64)
+            .bind(serde_json::to_string(&run.spec)?)
+            .execute(&mut *tx)
+            .await?;
+            sqlx::query(
+                "INSERT INTO jobs (id, run_id, batch_id, state, attempts, available_at, updated_at)
+                 VALUES (?, ?, ?, 'queued', 0, ?, ?)",
+            )
+            .bind(Uuid::new_v4().to_string())
+            .bind(&run_id)
+            .bind(batch_id.to_string())
+            .bind(now)
+            .bind(now)
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        Ok(batch_id)
+    }
+
+    /// The most recent batches, newest first.
+    pub async fn list_batches(&self, limit: u32) -> Result<Vec<BatchSummary>, AppError> {
+        let rows = sqlx::query(&format!(
+            "{SUMMARY_SELECT} GROUP BY b.id ORDER BY b.created_at DESC, b.rowid DESC LIMIT ?"
+        ))
+        .bind(i64::from(limit))
+        .fetch_all(&self.reader)
+        .await?;
+        rows.iter().map(summary_from_row).collect()
+    }
+
+    /// Progress of one batch, or `None` if it does not exist.
+    pub async fn batch_status(&self, batch_id: Uuid) -> Result<Option<BatchStatus>, AppError> {
+        let Some(row) = sqlx::query(&format!("{SUMMARY_SELECT} WHERE b.id = ? GROUP BY b.id"))
+            .bind(batch_id.to_string())
+            .fetch_optional(&self.reader)
+            .await?
+        else {
+            return Ok(None);
+        };
+        let summary = summary_from_row(&row)?;
+        let extra = sqlx::query(
+            "SELECT b.response, b.model,
+                    (SELECT AVG(wall_time_s) FROM runs WHERE batch_id = b.id
+                                                        AND metrics IS NOT NULL) AS mean_wall,
+                    EXISTS (SELECT 1 FROM analyses WHERE batch_id = b.id) AS analysed
+             FROM batches b WHERE b.id = ?",
+        )
+        .bind(batch_id.to_string())
+        .fetch_one(&self.reader)
+        .await?;
+        let mean_wall_time_s: Option<f64> = extra.try_get("mean_wall")?;
+        let remaining = summary.counts.queued + summary.counts.running;
+        let eta_s = match (mean_wall_time_s, summary.state) {
+            (Some(mean), BatchState::Active) if remaining > 0 => {
+                Some(mean * remaining as f64 / summary.counts.running.max(1) as f64)
+            }
+            _ => None,
+        };
+        Ok(Some(BatchStatus {
+            response: extra.try_get("response")?,
+            model: model_from_db(extra.try_get("model")?)?,
+            mean_wall_time_s,
+            eta_s,
+            analysis_ready: extra.try_get("analysed")?,
+            summary,
+        }))
+    }
+
+    /// Every run of a batch in run order, or `None` if the batch does not exist.
+    pub async fn list_runs(
+        &self,
+        batch_id: Uuid,
+    ) -> Result<Option<(Vec<String>, Vec<RunView>)>, AppError> {
+        let Some(batch) = sqlx::query("SELECT factors FROM batches WHERE id = ?")
+            .bind(batch_id.to_string())
+            .fetch_optional(&self.reader)
+            .await?
+        else {
+            return Ok(None);
+        };
+        let factors: Vec<Factor> = serde_json::from_str(batch.try_get("factors")?)?;
+        let names: Vec<String> = factors.into_iter().map(|f| f.name).collect();
+        let rows = sqlx::query(
+            "SELECT r.id, r.run_index, r.design_row, r.replicate, r.coded, r.natural, r.seed,
+                    r.metrics, r.wall_time_s, COALESCE(r.worker_id, j.worker_id) AS worker_id,
+                    j.state, j.attempts, j.last_error
+             FROM runs r JOIN jobs j ON j.run_id = r.id
+             WHERE r.batch_id = ? ORDER BY r.run_index",
+        )
+        .bind(batch_id.to_string())
+        .fetch_all(&self.reader)
+        .await?;
+        let runs = rows
+            .iter()
+            .map(|row| -> Result<RunView, AppError> {
+                let coded: Vec<f64> = serde_json::from_str(row.try_get("coded")?)?;
+                let natural: Vec<f64> = serde_json::from_str(row.try_get("natural")?)?;
+                let factors = names
+                    .iter()
+                    .zip(coded.iter().zip(&natural))
+                    .map(|(name, (&coded, &natural))| FactorValue {
+                        name: name.clone(),
+                        coded,
+                        natural,
+                    })
+                    .collect();
+                let metrics: Option<String> = row.try_get("metrics")?;
+                let worker_id: Option<String> = row.try_get("worker_id")?;
+                Ok(RunView {
+                    id: parse_uuid(row.try_get("id")?)?,
+                    run_index: row.try_get::<i64, _>("run_index")? as u32,
+                    design_row: row.try_get::<i64, _>("design_row")? as u32,
+                    replicate: row.try_get::<i64, _>("replicate")? as u32,
+                    factors,
+                    seed: row.try_get::<i64, _>("seed")? as u64,
+                    status: run_state_from_job(row.try_get("state")?)?,
+                    attempts: row.try_get::<i64, _>("attempts")? as u32,
+                    metrics: metrics.map(|m| serde_json::from_str(&m)).transpose()?,
+                    wall_time_s: row.try_get("wall_time_s")?,
+                    worker_id: worker_id.as_deref().map(parse_uuid).transpose()?,
+                    last_error: row.try_get("last_error")?,
+                })
+            })
+            .collect::<Result<Vec<_>, AppError>>()?;
+        Ok(Some((names, runs)))
+    }
+
+    /// Cancels an active batch: its unfinished jobs will not run. Returns the state afterwards,
+    /// or `None` if the batch does not exist. Completed batches are left alone.
+    pub async fn cancel_batch(&self, batch_id: Uuid) -> Result<Option<BatchState>, AppError> {
+        let now = now_ms();
+        let id = batch_id.to_string();
+        let mut tx = self.writer.begin().await?;
+        let Some(state) = sqlx::query_scalar::<_, String>("SELECT state FROM batches WHERE id = ?")
+            .bind(&id)
+            .fetch_optional(&mut *tx)
+            .await?
+        else {
+            return Ok(None);
+        };
+        let state = batch_state_from_db(&state)?;
+        if state != BatchState::Active {
+            return Ok(Some(state));
+        }
+        sqlx::query(
+            "UPDATE leases SET outcome = 'cancelled', ended_at = ?
+             WHERE token IN (SELECT lease_token FROM jobs WHERE batch_id = ? AND state = 'leased')",
+        )
+        .bind(now)
+        .bind(&id)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query(
+            "UPDATE jobs SET state = 'cancelled', lease_token = NULL, lease_expires_at = NULL,
+                             updated_at = ?
+             WHERE batch_id = ? AND state IN ('queued', 'leased')",
+        )
+        .bind(now)
+        .bind(&id)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query("UPDATE batches SET state = 'cancelled', finished_at = ? WHERE id = ?")
+            .bind(now)
+            .bind(&id)
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(Some(BatchState::Cancelled))
+    }
+
+    // -----------------------------------------------------------------------------------------
+    // Workers and jobs
+    // -----------------------------------------------------------------------------------------
+
+    /// Records (or refreshes) a worker.
+    pub async fn register_worker(&self, worker: &WorkerRegistration) -> Result<(), AppError> {
+        let now = now_ms();
+        sqlx::query(
+            "INSERT INTO workers (id, host, threads, version, registered_at, last_seen_at)
+             VALUES (?, ?, ?, ?, ?, ?)
+             ON CONFLICT (id) DO UPDATE SET host = excluded.host, threads = excluded.threads,
+                 version = excluded.version, last_seen_at = excluded.last_seen_at",
+        )
+        .bind(worker.instance_id.to_string())
+        .bind(&worker.host)
+        .bind(i64::from(worker.threads))
+        .bind(&worker.version)
+        .bind(now)
+        .bind(now)
+        .execute(&self.writer)
+        .await?;
+        Ok(())
+    }
+
+    /// Leases the oldest available job to `worker_id`, first returning expired leases to the
+    /// queue (or marking their jobs dead after `max_attempts`). `Ok(None)`: nothing to do.
+    /// Also reports the batches that the expiries finished.
+    pub async fn claim(
+        &self,
+        worker_id: Uuid,
+        lease: Duration,
+        max_attempts: u32,
+    ) -> Result<(Option<ClaimResponse>, Vec<Uuid>), AppError> {
+        let now = now_ms();
+        let mut tx = self.writer.begin().await?;
+        let worker_known = sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
+            .bind(now)
+            .bind(worker_id.to_string())
+            .execute(&mut *tx)
+            .await?
+            .rows_affected()
+            == 1;
+        if !worker_known {
+            return Err(AppError::invalid(
+                "worker_id",
+                format!("worker {worker_id} is not registered; POST /v1/workers/register first"),
+            ));
+        }
+        let finished = expire_leases(&mut tx, now, max_attempts).await?;
+
+        let token = Uuid::new_v4();
+        let expires_at = now + duration_ms(lease);
+        let claimed = sqlx::query(
+            "UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
+                             lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
+             WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND available_at <= ?
+                         ORDER BY available_at, rowid LIMIT 1)
+             RETURNING id, run_id, batch_id, attempts",
+        )
+        .bind(token.to_string())
+        .bind(expires_at)
+        .bind(worker_id.to_string())
+        .bind(now)
+        .bind(now)
+        .fetch_optional(&mut *tx)
+        .await?;
+        let Some(claimed) = claimed else {
+            tx.commit().await?;
+            return Ok((None, finished));
+        };
+        let job_id: String = claimed.try_get("id")?;
+        let run_id: String = claimed.try_get("run_id")?;
+        let attempt: i64 = claimed.try_get("attempts")?;
+        sqlx::query(
+            "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
+             VALUES (?, ?, ?, ?, ?)",
+        )
+        .bind(token.to_string())
+        .bind(&job_id)
+        .bind(worker_id.to_string())
+        .bind(attempt)
+        .bind(now)
+        .execute(&mut *tx)
+        .await?;
+        let run = sqlx::query(
+            "SELECT r.spec, r.seed, r.batch_id, b.kind
+             FROM runs r JOIN batches b ON b.id = r.batch_id WHERE r.id = ?",
+        )
+        .bind(&run_id)
+        .fetch_one(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        let spec: Value = serde_json::from_str(run.try_get("spec")?)?;
+        Ok((
+            Some(ClaimResponse {
+                job_id: parse_uuid(&job_id)?,
+                lease_token: token,
+                lease_expires_in_s: lease.as_secs_f64(),
+                run_id: parse_uuid(&run_id)?,
+                batch_id: parse_uuid(run.try_get("batch_id")?)?,
+                kind: run.try_get("kind")?,
+                spec,
+                seed: run.try_get::<i64, _>("seed")? as u64,
+                attempt: attempt as u32,
+            }),
+            finished,
+        ))
+    }
+
+    /// Renews a current lease and records progress. A lease that ended because the batch was
+    /// cancelled or another lease delivered the result answers `cancel`; other stale leases
+    /// are a conflict.
+    pub async fn heartbeat(
+        &self,
+        job_id: Uuid,
+        token: Uuid,
+        progress: f64,
+        lease: Duration,
+    ) -> Result<HeartbeatOutcome, AppError> {
+        let now = now_ms();
+        let mut tx = self.writer.begin().await?;
+        let found = lookup_lease(&mut tx, job_id, token).await?;
+        if found.is_current(token) {
+            sqlx::query(
+                "UPDATE jobs SET lease_expires_at = ?, progress = ?, updated_at = ? WHERE id = ?",
+            )
+            .bind(now + duration_ms(lease))
+            .bind(progress.clamp(0.0, 1.0))
+            .bind(now)
+            .bind(job_id.to_string())
+            .execute(&mut *tx)
+            .await?;
+            sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
+                .bind(now)
+                .bind(&found.worker_id)
+                .execute(&mut *tx)
+                .await?;
+            tx.commit().await?;
+            return Ok(HeartbeatOutcome {
+                cancel: false,
+                lease_expires_in_s: lease.as_secs_f64(),
+            });
+        }
+        match found.outcome.as_deref() {
+            Some("cancelled" | "superseded") => Ok(HeartbeatOutcome {
+                cancel: true,
+                lease_expires_in_s: 0.0,
+            }),
+            _ => Err(found.stale_conflict()),
+        }
+    }
+
+    /// Stores a result. Accepted from the current lease, and from an *expired* earlier lease
+    /// as long as the run has no result yet (a late DEM result is too expensive to discard);
+    /// any other lease, or a second result, is a conflict and changes nothing.
+    pub async fn complete(
+        &self,
+        job_id: Uuid,
+        token: Uuid,
+        completion: &Completion,
+    ) -> Result<JobUpdate, AppError> {
+        let now = now_ms();
+        let mut tx = self.writer.begin().await?;
+        let found = lookup_lease(&mut tx, job_id, token).await?;
+        let current = found.is_current(token);
+        let late = found.outcome.as_deref() == Some("expired")
+            && !found.has_result
+            && matches!(found.job_state.as_str(), "queued" | "leased" | "dead");
+        if !(current || late) {
+            return Err(found.stale_conflict());
+        }
+        match completion.metrics.get(&found.response) {
+            Some(value) if value.is_finite() => {}
+            _ => {
+                return Err(AppError::invalid(
+                    format!("metrics.{}", found.response),
+                    format!(
+                        "the batch's response metric `{}` is missing or not finite",
+                        found.response
+                    ),
+                ))
+            }
+        }
+        if !(completion.wall_time_s.is_finite() && completion.wall_time_s >= 0.0) {
+            return Err(AppError::invalid(
+                "wall_time_s",
+                "must be a non-negative number",
+            ));
+        }
+        let stored = sqlx::query(
+            "UPDATE runs SET metrics = ?, details = ?, wall_time_s = ?, worker_id = ?,
+                             completed_at = ?
+             WHERE id = ? AND metrics IS NULL",
+        )
+        .bind(serde_json::to_string(&completion.metrics)?)
+        .bind(serde_json::to_string(&completion.details)?)
+        .bind(completion.wall_time_s)
+        .bind(&found.worker_id)
+        .bind(now)
+        .bind(&found.run_id)
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        if stored != 1 {
+            return Err(AppError::Conflict("the run already has a result".into()));
+        }
+        sqlx::query("UPDATE leases SET outcome = 'completed', ended_at = ? WHERE token = ?")
+            .bind(now)
+            .bind(token.to_string())
+            .execute(&mut *tx)
+            .await?;
+        if let (false, Some(other)) = (current, &found.current_token) {
+            // Someone else holds the job now; their work is moot.
+            sqlx::query("UPDATE leases SET outcome = 'superseded', ended_at = ? WHERE token = ?")
+                .bind(now)
+                .bind(other)
+                .execute(&mut *tx)
+                .await?;
+        }
+        sqlx::query(
+            "UPDATE jobs SET state = 'completed', lease_token = NULL, lease_expires_at = NULL,
+                             progress = 1, updated_at = ?
+             WHERE id = ?",
+        )
+        .bind(now)
+        .bind(job_id.to_string())
+        .execute(&mut *tx)
+        .await?;
+        let batch_finished = finish_batch_if_done(&mut tx, &found.batch_id, now).await?;
+        tx.commit().await?;
+        Ok(JobUpdate {
+            batch_id: parse_uuid(&found.batch_id)?,
+            status: RunState::Completed,
+            batch_finished,
+            requeued: false,
+        })
+    }
+
+    /// Records a failed attempt: the job is retried after `backoff × 2^(attempt-1)`, or marked
+    /// dead once it has used `max_attempts` leases.
+    pub async fn fail(
+        &self,
+        job_id: Uuid,
+        token: Uuid,
+        error: &str,
+        max_attempts: u32,
+        backoff: Duration,
+    ) -> Result<JobUpdate, AppError> {
+        let now = now_ms();
+        let mut tx = self.writer.begin().await?;
+        let found = lookup_lease(&mut tx, job_id, token).await?;
+        if !found.is_current(token) {
+            return Err(found.stale_conflict());
+        }
+        let dead = found.attempts >= i64::from(max_attempts);
+        let exponent = u32::try_from(found.attempts.saturating_sub(1).clamp(0, 20)).unwrap_or(20);
+        let retry_at = now.saturating_add(duration_ms(backoff).saturating_mul(1 << exponent));
+        sqlx::query("UPDATE leases SET outcome = 'failed', ended_at = ? WHERE token = ?")
+            .bind(now)
+            .bind(token.to_string())
+            .execute(&mut *tx)
+            .await?;
+        sqlx::query(
+            "UPDATE jobs SET state = ?, lease_token = NULL, lease_expires_at = NULL,
+                             available_at = ?, last_error = ?, updated_at = ?
+             WHERE id = ?",
+        )
+        .bind(if dead { "dead" } else { "queued" })
+        .bind(retry_at)
+        .bind(error)
+        .bind(now)
+        .bind(job_id.to_string())
+        .execute(&mut *tx)
+        .await?;
+        let batch_finished = dead && finish_batch_if_done(&mut tx, &found.batch_id, now).await?;
+        tx.commit().await?;
+        Ok(JobUpdate {
+            batch_id: parse_uuid(&found.batch_id)?,
+            status: if dead {
+                RunState::Dead
+            } else {
+                RunState::Queued
+            },
+            batch_finished,
+            requeued: !dead,
+        })
+    }
+
+    /// Gives a job back to the queue at once without counting the attempt.
+    pub async fn release(&self, job_id: Uuid, token: Uuid) -> Result<JobUpdate, AppError> {
+        let now = now_ms();
+        let mut tx = self.writer.begin().await?;
+        let found = lookup_lease(&mut tx, job_id, token).await?;
+        if !found.is_current(token) {
+            return Err(found.stale_conflict());
+        }
+        sqlx::query("UPDATE leases SET outcome = 'released', ended_at = ? WHERE token = ?")
+            .bind(now)
+            .bind(token.to_string())
+            .execute(&mut *tx)
+            .await?;
+        sqlx::query(
+            "UPDATE jobs SET state = 'queued', attempts = MAX(attempts - 1, 0), lease_token = NULL,
+                             lease_expires_at = NULL, worker_id = NULL, available_at = ?,
+                             updated_at = ?
+             WHERE id = ?",
+        )
+        .bind(now)
+        .bind(now)
+        .bind(job_id.to_string())
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(JobUpdate {
+            batch_id: parse_uuid(&found.batch_id)?,
+            status: RunState::Queued,
+            batch_finished: false,
+            requeued: true,
+        })
+    }
+
+    // -----------------------------------------------------------------------------------------
+    // Analyses
+    // -----------------------------------------------------------------------------------------
+
+    /// The inputs of a batch's analysis, or `None` if the batch does not exist.
+    pub async fn analysis_input(&self, batch_id: Uuid) -> Result<Option<AnalysisInput>, AppError> {
+        let Some(batch) = sqlx::query(
+            "SELECT state, factors, design_kind, response, model, target, base_seed
+             FROM batches WHERE id = ?",
+        )
+        .bind(batch_id.to_string())
+        .fetch_optional(&self.reader)
+        .await?
+        else {
+            return Ok(None);
+        };
+        let rows = sqlx::query(
+            "SELECT coded, metrics FROM runs
+             WHERE batch_id = ? AND metrics IS NOT NULL ORDER BY run_index",
+        )
+        .bind(batch_id.to_string())
+        .fetch_all(&self.reader)
+        .await?;
+        let completed = rows
+            .iter()
+            .map(
+                |row| -> Result<(Vec<f64>, BTreeMap<String, f64>), AppError> {
+                    let coded: Vec<f64> = serde_json::from_str(row.try_get("coded")?)?;
+                    let metrics: BTreeMap<String, f64> =
+                        serde_json::from_str(row.try_get("metrics")?)?;
+                    Ok((coded, metrics))
+                },
+            )
+            .collect::<Result<Vec<_>, AppError>>()?;
+        Ok(Some(AnalysisInput {
+            batch_id,
+            state: batch_state_from_db(batch.try_get("state")?)?,
+            factors: serde_json::from_str(batch.try_get("factors")?)?,
+            design_kind: serde_json::from_str(batch.try_get("design_kind")?)?,
+            response: batch.try_get("response")?,
+            model: model_from_db(batch.try_get("model")?)?,
+            target: batch.try_get("target")?,
+            base_seed: batch.try_get::<i64, _>("base_seed")? as u64,
+            completed,
+        }))
+    }
+
+    /// The stored analysis of a batch, if computed.
+    pub async fn analysis(&self, batch_id: Uuid) -> Result<Option<AnalysisView>, AppError> {
+        let stored: Option<String> =
+            sqlx::query_scalar("SELECT result FROM analyses WHERE batch_id = ?")
+                .bind(batch_id.to_string())
+                .fetch_optional(&self.reader)
+                .await?;
+        Ok(stored.map(|s| serde_json::from_str(&s)).transpose()?)
+    }
+
+    /// Stores an analysis unless one exists, and returns the stored one: whoever computed
+    /// first wins, so every reader sees the same result.
+    pub async fn store_analysis(&self, analysis: &AnalysisView) -> Result<AnalysisView, AppError> {
+        let mut tx = self.writer.begin().await?;
+        sqlx::query(
+            "INSERT INTO analyses (batch_id, computed_at, result) VALUES (?, ?, ?)
+             ON CONFLICT (batch_id) DO NOTHING",
+        )
+        .bind(analysis.batch_id.to_string())
+        .bind(analysis.computed_at_ms)
+        .bind(serde_json::to_string(analysis)?)
+        .execute(&mut *tx)
+        .await?;
+        let stored: String = sqlx::query_scalar("SELECT result FROM analyses WHERE batch_id = ?")
+            .bind(analysis.batch_id.to_string())
+            .fetch_one(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(serde_json::from_str(&stored)?)
+    }
+}
+
+impl LeaseLookup {
+    fn is_current(&self, token: Uuid) -> bool {
+        self.job_state == "leased"
+            && self.outcome.is_none()
+            && self.current_token.as_deref() == Some(token.to_string().as_str())
+    }
+
+    fn stale_conflict(&self) -> AppError {
+        let why = match self.outcome.as_deref() {
+            Some("completed") => "this lease already delivered its result".to_owned(),
+            Some("superseded") => "the run already has a result".to_owned(),
+            Some("cancelled") => "the batch was cancelled".to_owned(),
+            Some("expired") if self.has_result => {
+                "the lease expired and the run already has a result".to_owned()
+            }
+            Some(outcome) => format!("the lease is no longer valid ({outcome})"),
+            None => "the lease is no longer valid".to_owned(),
+        };
+        AppError::Conflict(why)
+    }
+}
+
+/// Finds the lease `token` of job `job_id`: 404 if the job does not exist, 409 if the token was
+/// never issued for it.
+async fn lookup_lease(
+    tx: &mut Transaction<'_, Sqlite>,
+    job_id: Uuid,
+    token: Uuid,
+) -> Result<LeaseLookup, AppError> {
+    let row = sqlx::query(
+        "SELECT l.outcome, l.worker_id, j.state, j.lease_token, j.attempts, j.run_id, j.batch_id,
+                r.metrics IS NOT NULL AS has_result, b.response
+         FROM leases l
+         JOIN jobs j ON j.id = l.job_id
+         JOIN runs r ON r.id = j.run_id
+         JOIN batches b ON b.id = j.batch_id
+         WHERE l.token = ? AND l.job_id = ?",
+    )
+    .bind(token.to_string())
+    .bind(job_id.to_string())
+    .fetch_optional(&mut **tx)
+    .await?;
+    let Some(row) = row else {
+        let job_exists = sqlx::query("SELECT 1 FROM jobs WHERE id = ?")
+            .bind(job_id.to_string())
+            .fetch_optional(&mut **tx)
+            .await?
+            .is_some();
+        return Err(if job_exists {
+            AppError::Conflict(format!("lease {token} was not issued for job {job_id}"))
+        } else {
+            AppError::NotFound(format!("job {job_id} not found"))
+        });
+    };
+    Ok(LeaseLookup {
+        outcome: row.try_get("outcome")?,
+        worker_id: row.try_get("worker_id")?,
+        job_state: row.try_get("state")?,
+        current_token: row.try_get("lease_token")?,
+        attempts: row.try_get("attempts")?,
+        run_id: row.try_get("run_id")?,
+        batch_id: row.try_get("batch_id")?,
+        has_result: row.try_get("has_result")?,
+        response: row.try_get("response")?,
+    })
+}
+
+/// Ends every lease past its expiry: the job is queued again, or dead when it has used up its
+/// attempts. Returns the batches this finished.
+async fn expire_leases(
+    tx: &mut Transaction<'_, Sqlite>,
+    now: i64,
+    max_attempts: u32,
+) -> Result<Vec<Uuid>, AppError> {
+    sqlx::query(
+        "UPDATE leases SET outcome = 'expired', ended_at = ?
+         WHERE token IN (SELECT lease_token FROM jobs
+                         WHERE state = 'leased' AND lease_expires_at <= ?)",
+    )
+    .bind(now)
+    .bind(now)
+    .execute(&mut **tx)
+    .await?;
+    let expired = sqlx::query(
+        "UPDATE jobs SET state = CASE WHEN attempts >= ? THEN 'dead' ELSE 'queued' END,
+                         last_error = 'lease expired (attempt ' || attempts || ')',
+                         lease_token = NULL, lease_expires_at = NULL, worker_id = NULL,
+                         available_at = ?, updated_at = ?
+         WHERE state = 'leased' AND lease_expires_at <= ?
+         RETURNING batch_id, state",
+    )
+    .bind(i64::from(max_attempts))
+    .bind(now)
+    .bind(now)
+    .bind(now)
+    .fetch_all(&mut **tx)
+    .await?;
+    let mut finished = Vec::new();
+    for row in &expired {
+        let state: String = row.try_get("state")?;
+        let batch_id: String = row.try_get("batch_id")?;
+        if state == "dead" && finish_batch_if_done(tx, &batch_id, now).await? {
+            finished.push(parse_uuid(&batch_id)?);
+        }
+    }
+    Ok(finished)
+}
+
+/// Marks an active batch completed when none of its jobs is queued or leased; true if this call
+/// did it (so exactly one caller triggers the analysis).
+async fn finish_batch_if_done(
+    tx: &mut Transaction<'_, Sqlite>,
+    batch_id: &str,
+    now: i64,
+) -> Result<bool, AppError> {
+    let done = sqlx::query(
+        "UPDATE batches SET state = 'completed', finished_at = ?
+         WHERE id = ? AND state = 'active'
+           AND NOT EXISTS (SELECT 1 FROM jobs WHERE batch_id = ? AND state IN ('queued', 'leased'))",
+    )
+    .bind(now)
+    .bind(batch_id)
+    .bind(batch_id)
+    .execute(&mut **tx)
+    .await?
+    .rows_affected();
+    Ok(done == 1)
+}
+
+const SUMMARY_SELECT: &str = "SELECT b.id, b.name, b.kind, b.state, b.created_at,
+        COALESCE(SUM(j.state = 'queued'), 0) AS queued,
+        COALESCE(SUM(j.state = 'leased'), 0) AS running,
+        COALESCE(SUM(j.state = 'completed'), 0) AS completed,
+        COALESCE(SUM(j.state = 'dead'), 0) AS dead,
+        COALESCE(SUM(j.state = 'cancelled'), 0) AS cancelled
+    FROM batches b LEFT JOIN jobs j ON j.batch_id = b.id";
+
+fn summary_from_row(row: &SqliteRow) -> Result<BatchSummary, AppError> {
+    let count = |name: &str| -> Result<u64, AppError> { Ok(row.try_get::<i64, _>(name)? as u64) };
+    let counts = StateCounts {
+        queued: count("queued")?,
+        running: count("running")?,
+        completed: count("completed")?,
+        dead: count("dead")?,
+        cancelled: count("cancelled")?,
+    };
+    let percent_done = if counts.total() == 0 {
+        100.0
+    } else {
+        100.0 * counts.finished() as f64 / counts.total() as f64
+    };
+    Ok(BatchSummary {
+        id: parse_uuid(row.try_get("id")?)?,
+        name: row.try_get("name")?,
+        kind: row.try_get("kind")?,
+        state: batch_state_from_db(row.try_get("state")?)?,
+        created_at_ms: row.try_get("created_at")?,
+        counts,
+        percent_done,
+    })
+}
+
+fn parse_uuid(text: &str) -> Result<Uuid, AppError> {
+    Uuid::from_str(text).map_err(|err| AppError::Internal(format!("stored id {text:?}: {err}")))
+}
+
+fn batch_state_from_db(text: &str) -> Result<BatchState, AppError> {
+    match text {
+        "active" => Ok(BatchState::Active),
+        "completed" => Ok(BatchState::Completed),
+        "cancelled" => Ok(BatchState::Cancelled),
+        other => Err(AppError::Internal(format!("stored batch state {other:?}"))),
+    }
+}
+
+fn run_state_from_job(text: &str) -> Result<RunState, AppError> {
+    match text {
+        "queued" => Ok(RunState::Queued),
+        "leased" => Ok(RunState::Running),
+        "completed" => Ok(RunState::Completed),
+        "dead" => Ok(RunState::Dead),
+        "cancelled" => Ok(RunState::Cancelled),
+        other => Err(AppError::Internal(format!("stored job state {other:?}"))),
+    }
+}
+
+fn model_to_db(model: ModelName) -> &'static str {
+    crate::submit::model_label(model)
+}
+
+fn model_from_db(text: &str) -> Result<ModelName, AppError> {
+    match text {
+        "linear" => Ok(ModelName::Linear),
+        "2fi" => Ok(ModelName::TwoFactorInteraction),
+        "quadratic" => Ok(ModelName::Quadratic),
+        other => Err(AppError::Internal(format!("stored model {other:?}"))),
+    }
+}

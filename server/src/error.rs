@@ -1,0 +1,93 @@
+//! The server's one error type and its mapping to HTTP status codes.
+//!
+//! Every handler returns `Result<_, AppError>`; the status code of each failure is decided here
+//! and nowhere else, and internal failures are logged and answered with a generic message so
+//! SQL, file paths and the like never leak to clients.
+
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use repose_api::ApiError;
+
+/// Everything a request can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The request is malformed in a way no field can be blamed for (bad JSON, bad id, …): 400.
+    #[error("{0}")]
+    BadRequest(String),
+    /// A well-formed request with an unacceptable value: 422, naming the field when known.
+    #[error("{message}")]
+    Invalid {
+        /// Dotted path of the offending field, e.g. `factors[0].low`.
+        field: Option<String>,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// The addressed batch, job or run does not exist: 404.
+    #[error("{0}")]
+    NotFound(String),
+    /// The request conflicts with the current state (stale lease, duplicate completion, …): 409.
+    #[error("{0}")]
+    Conflict(String),
+    /// The body could not be read (too large, wrong encoding): status chosen by axum.
+    #[error("{message}")]
+    Body {
+        /// Status axum assigned to the rejection, e.g. 413.
+        status: StatusCode,
+        /// Axum's explanation.
+        message: String,
+    },
+    /// A database failure: 500, details only in the log.
+    #[error("database error: {0}")]
+    Database(#[from] sqlx::Error),
+    /// Any other server-side failure: 500, details only in the log.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl AppError {
+    /// A 422 blaming `field`.
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        AppError::Invalid {
+            field: Some(field.into()),
+            message: message.into(),
+        }
+    }
+}
+
+impl From<serde_json::Error> for AppError {
+    /// JSON round trips of values the server itself stored; failing means a bug or corruption.
+    fn from(err: serde_json::Error) -> Self {
+        AppError::Internal(format!("stored JSON: {err}"))
+    }
+}
+
+impl IntoResponse for AppError {
+    fn into_response(self) -> Response {
+        let (status, field, message) = match self {
+            AppError::BadRequest(message) => (StatusCode::BAD_REQUEST, None, message),
+            AppError::Invalid { field, message } => {
+                (StatusCode::UNPROCESSABLE_ENTITY, field, message)
+            }
+            AppError::NotFound(message) => (StatusCode::NOT_FOUND, None, message),
+            AppError::Conflict(message) => (StatusCode::CONFLICT, None, message),
+            AppError::Body { status, message } => (status, None, message),
+            internal @ (AppError::Database(_) | AppError::Internal(_)) => {
+                tracing::error!(error = %internal, "request failed");
+                (
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    None,
+                    "internal error".to_owned(),
+                )
+            }
+        };
+        (
+            status,
+            Json(ApiError {
+                error: message,
+                field,
+            }),
+        )
+            .into_response()
+    }
+}

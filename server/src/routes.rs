@@ -1,0 +1,468 @@
+//! HTTP routes: request parsing, id validation and the claim long-poll. State changes are
+//! delegated to [`crate::db`], validation of submissions to [`crate::submit`].
+
+use std::fmt::Write as _;
+use std::time::Duration;
+
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{DefaultBodyLimit, FromRequest, Path, Query, Request, State};
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use repose_api::{
+    BatchCreated, BatchRequest, BatchState, ClaimRequest, Completion, Failure, Health, Heartbeat,
+    HeartbeatResponse, JobUpdateResponse, Release, RunView, WorkerRegistered, WorkerRegistration,
+};
+use serde::de::DeserializeOwned;
+use serde::Deserialize;
+use tokio::time::Instant;
+use uuid::Uuid;
+
+use crate::db::JobUpdate;
+use crate::error::AppError;
+use crate::{analysis, submit, AppState};
+
+/// How often a waiting claim re-checks the queue even without a notification, so retry
+/// back-offs and expired leases are picked up without a background task.
+const CLAIM_RECHECK: Duration = Duration::from_millis(500);
+
+/// Batches listed by `GET /v1/batches`.
+const BATCH_LIST_LIMIT: u32 = 500;
+
+/// The router with every endpoint; `state` comes from [`AppState::open`].
+pub fn app(state: AppState) -> Router {
+    let body_limit = state.config.body_limit_bytes;
+    Router::new()
+        .route("/healthz", get(health))
+        .route("/v1/batches", post(create_batch).get(list_batches))
+        .route("/v1/batches/{id}", get(batch_status))
+        .route("/v1/batches/{id}/runs", get(batch_runs))
+        .route("/v1/batches/{id}/cancel", post(cancel_batch))
+        .route("/v1/batches/{id}/analysis", get(batch_analysis))
+        .route("/v1/workers/register", post(register_worker))
+        .route("/v1/jobs/claim", post(claim_job))
+        .route("/v1/jobs/{id}/heartbeat", post(heartbeat))
+        .route("/v1/jobs/{id}/complete", post(complete_job))
+        .route("/v1/jobs/{id}/fail", post(fail_job))
+        .route("/v1/jobs/{id}/release", post(release_job))
+        .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
+        .layer(DefaultBodyLimit::max(body_limit))
+        .with_state(state)
+}
+
+/// JSON body extractor whose errors name the offending field (`factors[1].low`) and use the
+/// server's error format instead of axum's plain-text rejections.
+struct ValidJson<T>(T);
+
+impl<S, T> FromRequest<S> for ValidJson<T>
+where
+    S: Send + Sync,
+    T: DeserializeOwned,
+{
+    type Rejection = AppError;
+
+    async fn from_request(request: Request, state: &S) -> Result<Self, AppError> {
+        let bytes =
+            Bytes::from_request(request, state)
+                .await
+                .map_err(|rejection: BytesRejection| AppError::Body {
+                    status: rejection.status(),
+                    message: rejection.body_text(),
+                })?;
+        let mut deserializer = serde_json::Deserializer::from_slice(&bytes);
+        let value = serde_path_to_error::deserialize(&mut deserializer).map_err(|err| {
+            let field = err.path().to_string();
+            let inner = err.into_inner();
+            if inner.is_syntax() || inner.is_eof() {
+                AppError::BadRequest(format!("malformed JSON: {inner}"))
+            } else {
+                AppError::Invalid {
+                    field: (field != "." && !field.is_empty()).then_some(field),
+                    message: inner.to_string(),
+                }
+            }
+        })?;
+        deserializer
+            .end()
+            .map_err(|err| AppError::BadRequest(format!("malformed JSON: {err}")))?;
+        Ok(ValidJson(value))
+    }
+}
+
+/// Parses an id from the path; a malformed one is the client's mistake (400), not ours.
+fn parse_id(raw: &str, what: &str) -> Result<Uuid, AppError> {
+    Uuid::parse_str(raw)
+        .map_err(|_| AppError::BadRequest(format!("invalid {what} id `{raw}`: expected a UUID")))
+}
+
+#[derive(Debug, Deserialize)]
+struct FormatQuery {
+    format: Option<String>,
+}
+
+async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError> {
+    state.db.ping().await?;
+    Ok(Json(Health {
+        status: "ok".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+    }))
+}
+
+async fn create_batch(
+    State(state): State<AppState>,
+    ValidJson(request): ValidJson<BatchRequest>,
+) -> Result<(StatusCode, Json<BatchCreated>), AppError> {
+    let fallback_seed = Uuid::new_v4().as_u64_pair().0;
+    // Design generation and the estimability check are CPU work; keep them off the reactor.
+    let plan = tokio::task::spawn_blocking(move || submit::plan_batch(request, fallback_seed))
+        .await
+        .map_err(|err| AppError::Internal(format!("planning task: {err}")))??;
+    let id = state.db.insert_batch(&plan).await?;
+    state.jobs_available.notify_waiters();
+    tracing::info!(batch = %id, runs = plan.runs.len(), "batch submitted");
+    Ok((
+        StatusCode::CREATED,
+        Json(BatchCreated {
+            id,
+            run_count: plan.runs.len(),
+        }),
+    ))
+}
+
+async fn list_batches(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
+    Ok(Json(state.db.list_batches(BATCH_LIST_LIMIT).await?))
+}
+
+async fn batch_status(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+) -> Result<impl IntoResponse, AppError> {
+    let id = parse_id(&raw_id, "batch")?;
+    let status = state
+        .db
+        .batch_status(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+    Ok(Json(status))
+}
+
+async fn batch_runs(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    Query(query): Query<FormatQuery>,
+) -> Result<Response, AppError> {
+    let id = parse_id(&raw_id, "batch")?;
+    let (factor_names, runs) = state
+        .db
+        .list_runs(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+    match query.format.as_deref() {
+        None | Some("json") => Ok(Json(runs).into_response()),
+        Some("csv") => Ok((
+            [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
+            runs_csv(&factor_names, &runs),
+        )
+            .into_response()),
+        Some(other) => Err(AppError::BadRequest(format!(
+            "unknown format `{other}` (expected json or csv)"
+        ))),
+    }
+}
+
+async fn cancel_batch(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+) -> Result<impl IntoResponse, AppError> {
+    let id = parse_id(&raw_id, "batch")?;
+    match state.db.cancel_batch(id).await? {
+        None => Err(AppError::NotFound(format!("batch {id} not found"))),
+        Some(BatchState::Completed) => {
+            Err(AppError::Conflict(format!("batch {id} already completed")))
+        }
+        Some(_) => {
+            let status = state
+                .db
+                .batch_status(id)
+                .await?
+                .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+            Ok(Json(status))
+        }
+    }
+}
+
+async fn batch_analysis(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    Query(query): Query<FormatQuery>,
+) -> Result<Response, AppError> {
+    let id = parse_id(&raw_id, "batch")?;
+    let view = match state.db.analysis(id).await? {
+        Some(view) => view,
+        None => {
+            // Normally computed when the last run completes; this covers a restart in between.
+            let input = state
+                .db
+                .analysis_input(id)
+                .await?
+                .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+            match input.state {
+                BatchState::Completed => compute_and_store_analysis(&state, id).await?,
+                BatchState::Active => {
+                    return Err(AppError::Conflict(format!(
+                        "batch {id} is still running; the analysis is computed when its last \
+                         run finishes"
+                    )))
+                }
+                BatchState::Cancelled => {
+                    return Err(AppError::Conflict(format!(
+                        "batch {id} was cancelled; it has no analysis"
+                    )))
+                }
+            }
+        }
+    };
+    match query.format.as_deref() {
+        None | Some("json") => Ok(Json(view).into_response()),
+        Some("text") => Ok((
+            [(header::CONTENT_TYPE, "text/plain; charset=utf-8")],
+            analysis::render_text(&view),
+        )
+            .into_response()),
+        Some(other) => Err(AppError::BadRequest(format!(
+            "unknown format `{other}` (expected json or text)"
+        ))),
+    }
+}
+
+/// Fits the batch and stores the result unless another task already did.
+async fn compute_and_store_analysis(
+    state: &AppState,
+    batch_id: Uuid,
+) -> Result<repose_api::AnalysisView, AppError> {
+    let input = state
+        .db
+        .analysis_input(batch_id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("batch {batch_id} not found")))?;
+    let view = tokio::task::spawn_blocking(move || analysis::analyse(&input))
+        .await
+        .map_err(|err| AppError::Internal(format!("analysis task: {err}")))?;
+    state.db.store_analysis(&view).await
+}
+
+/// Runs the analysis of freshly finished batches in the background so the worker that
+/// delivered the last result is answered at once.
+fn analyse_in_background(state: &AppState, batches: Vec<Uuid>) {
+    for batch_id in batches {
+        let state = state.clone();
+        tokio::spawn(async move {
+            match compute_and_store_analysis(&state, batch_id).await {
+                Ok(view) => {
+                    tracing::info!(batch = %batch_id, error = ?view.error, "batch analysed")
+                }
+                Err(err) => tracing::error!(batch = %batch_id, error = %err, "analysis failed"),
+            }
+        });
+    }
+}
+
+async fn register_worker(
+    State(state): State<AppState>,
+    ValidJson(registration): ValidJson<WorkerRegistration>,
+) -> Result<impl IntoResponse, AppError> {
+    state.db.register_worker(&registration).await?;
+    tracing::info!(worker = %registration.instance_id, host = %registration.host, "worker registered");
+    Ok(Json(WorkerRegistered {
+        worker_id: registration.instance_id,
+        lease_s: state.config.lease.as_secs_f64(),
+    }))
+}
+
+/// Leases a job, waiting up to `wait_s` for one; 204 when none arrives in time.
+async fn claim_job(
+    State(state): State<AppState>,
+    ValidJson(request): ValidJson<ClaimRequest>,
+) -> Result<Response, AppError> {
+    if !(request.wait_s.is_finite() && request.wait_s >= 0.0) {
+        return Err(AppError::invalid("wait_s", "must be a non-negative number"));
+    }
+    let wait = Duration::from_secs_f64(request.wait_s).min(state.config.max_claim_wait);
+    let deadline = Instant::now() + wait;
+    let mut shutdown = state.shutdown.clone();
+    loop {
+        // Register interest before looking, so a submission between the look and the wait
+        // is not missed.
+        let notified = state.jobs_available.notified();
+        tokio::pin!(notified);
+        notified.as_mut().enable();
+
+        let (claimed, finished) = state
+            .db
+            .claim(
+                request.worker_id,
+                state.config.lease,
+                state.config.max_attempts,
+            )
+            .await?;
+        analyse_in_background(&state, finished);
+        if let Some(job) = claimed {
+            tracing::debug!(job = %job.job_id, worker = %request.worker_id, "job leased");
+            return Ok(Json(job).into_response());
+        }
+        let now = Instant::now();
+        if now >= deadline || *shutdown.borrow() {
+            return Ok(StatusCode::NO_CONTENT.into_response());
+        }
+        let recheck = (now + CLAIM_RECHECK).min(deadline);
+        tokio::select! {
+            _ = &mut notified => {}
+            _ = tokio::time::sleep_until(recheck) => {}
+            _ = shutdown.changed() => {}
+        }
+    }
+}
+
+async fn heartbeat(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    ValidJson(beat): ValidJson<Heartbeat>,
+) -> Result<impl IntoResponse, AppError> {
+    let job_id = parse_id(&raw_id, "job")?;
+    if !beat.progress.is_finite() {
+        return Err(AppError::invalid("progress", "must be a number in 0..1"));
+    }
+    let outcome = state
+        .db
+        .heartbeat(job_id, beat.lease_token, beat.progress, state.config.lease)
+        .await?;
+    Ok(Json(HeartbeatResponse {
+        cancel: outcome.cancel,
+        lease_expires_in_s: outcome.lease_expires_in_s,
+    }))
+}
+
+async fn complete_job(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    ValidJson(completion): ValidJson<Completion>,
+) -> Result<impl IntoResponse, AppError> {
+    let job_id = parse_id(&raw_id, "job")?;
+    let update = state
+        .db
+        .complete(job_id, completion.lease_token, &completion)
+        .await?;
+    Ok(after_update(&state, job_id, update))
+}
+
+async fn fail_job(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    ValidJson(failure): ValidJson<Failure>,
+) -> Result<impl IntoResponse, AppError> {
+    let job_id = parse_id(&raw_id, "job")?;
+    let update = state
+        .db
+        .fail(
+            job_id,
+            failure.lease_token,
+            &failure.error,
+            state.config.max_attempts,
+            state.config.retry_backoff,
+        )
+        .await?;
+    tracing::warn!(job = %job_id, error = %failure.error, status = ?update.status, "job failed");
+    Ok(after_update(&state, job_id, update))
+}
+
+async fn release_job(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    ValidJson(release): ValidJson<Release>,
+) -> Result<impl IntoResponse, AppError> {
+    let job_id = parse_id(&raw_id, "job")?;
+    let update = state.db.release(job_id, release.lease_token).await?;
+    Ok(after_update(&state, job_id, update))
+}
+
+/// Wakes waiting claims and starts the analysis as the update requires.
+fn after_update(state: &AppState, job_id: Uuid, update: JobUpdate) -> Json<JobUpdateResponse> {
+    if update.requeued {
+        state.jobs_available.notify_waiters();
+    }
+    if update.batch_finished {
+        tracing::info!(job = %job_id, "last run of a batch finished");
+        analyse_in_background(state, vec![update.batch_id]);
+    }
+    Json(JobUpdateResponse {
+        status: update.status,
+    })
+}
+
+/// The run table as CSV: one column per factor (natural units), per metric and the bookkeeping.
+fn runs_csv(factor_names: &[String], runs: &[RunView]) -> String {
+    let mut metric_names: Vec<&String> = runs
+        .iter()
+        .filter_map(|run| run.metrics.as_ref())
+        .flat_map(|metrics| metrics.keys())
+        .collect();
+    metric_names.sort();
+    metric_names.dedup();
+    let mut header_fields: Vec<String> = vec!["run_index".into(), "replicate".into()];
+    header_fields.extend(factor_names.iter().cloned());
+    header_fields.extend(["seed".into(), "status".into(), "attempts".into()]);
+    header_fields.extend(metric_names.iter().map(|m| (*m).clone()));
+    header_fields.extend(["worker_id".into(), "wall_time_s".into(), "run_id".into()]);
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{}",
+        header_fields
+            .iter()
+            .map(|f| csv_field(f))
+            .collect::<Vec<_>>()
+            .join(",")
+    );
+    for run in runs {
+        let mut fields: Vec<String> = vec![run.run_index.to_string(), run.replicate.to_string()];
+        fields.extend(run.factors.iter().map(|f| f.natural.to_string()));
+        fields.extend([
+            run.seed.to_string(),
+            run.status.as_str().to_owned(),
+            run.attempts.to_string(),
+        ]);
+        fields.extend(metric_names.iter().map(|name| {
+            run.metrics
+                .as_ref()
+                .and_then(|m| m.get(*name))
+                .map(f64::to_string)
+                .unwrap_or_default()
+        }));
+        fields.extend([
+            run.worker_id.map(|w| w.to_string()).unwrap_or_default(),
+            run.wall_time_s.map(|w| w.to_string()).unwrap_or_default(),
+            run.id.to_string(),
+        ]);
+        let _ = writeln!(
+            out,
+            "{}",
+            fields
+                .iter()
+                .map(|f| csv_field(f))
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+    }
+    out
+}
+
+/// Quotes a CSV field when it contains a separator, quote or line break (RFC 4180).
+fn csv_field(field: &str) -> String {
+    if field.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", field.replace('"', "\"\""))
+    } else {
+        field.to_owned()
+    }
+}

@@ -1,0 +1,361 @@
+//! Turning a [`BatchRequest`] into validated runs: design generation, coding, seeds and specs.
+//!
+//! Everything that can be wrong with a submission is detected here, before anything is
+//! written, and reported as a 422 naming the request field to fix.
+
+use repose_api::{apply_factor_values, BatchRequest, CcdVariantName, DesignRequest, ModelName};
+use repose_doe::design::{
+    box_behnken, central_composite, default_box_behnken_centre_points, full_factorial,
+    plackett_burman, replicate, smallest_plackett_burman_runs, splitmix64, CcdVariant, Design,
+    DesignError, DesignKind, Factor,
+};
+use repose_doe::{FitError, Model, ModelKind};
+use serde_json::Value;
+
+use crate::error::AppError;
+
+/// More runs than this in one batch is almost certainly a mistake (and a large transaction).
+pub const MAX_RUNS_PER_BATCH: usize = 10_000;
+
+/// One run ready to be stored.
+#[derive(Debug, Clone)]
+pub struct PlannedRun {
+    /// Position in the randomised run order (claim order).
+    pub run_index: usize,
+    /// Row of the design in standard order.
+    pub design_row: usize,
+    /// Replicate number, from 0.
+    pub replicate: usize,
+    /// Coded factor values, factor order.
+    pub coded: Vec<f64>,
+    /// Natural factor values, factor order.
+    pub natural: Vec<f64>,
+    /// DEM seed, distinct for every run of the batch.
+    pub seed: u64,
+    /// Experiment spec with the natural values written at the factor paths.
+    pub spec: Value,
+}
+
+/// A validated submission.
+#[derive(Debug, Clone)]
+pub struct PlannedBatch {
+    /// The request as received.
+    pub request: BatchRequest,
+    /// Factors in column order.
+    pub factors: Vec<Factor>,
+    /// Which construction produced the design (the analysis needs α of a CCD).
+    pub design_kind: DesignKind,
+    /// Seed the run order and run seeds derive from.
+    pub base_seed: u64,
+    /// The runs, in claim order.
+    pub runs: Vec<PlannedRun>,
+}
+
+/// The `repose-doe` model family for a wire model name.
+pub fn model_kind(model: ModelName) -> ModelKind {
+    match model {
+        ModelName::Linear => ModelKind::Linear,
+        ModelName::TwoFactorInteraction => ModelKind::TwoFactorInteraction,
+        ModelName::Quadratic => ModelKind::Quadratic,
+    }
+}
+
+/// Validates `request` and expands it into runs; `fallback_seed` is used when it has no seed.
+pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBatch, AppError> {
+    if request.name.trim().is_empty() {
+        return Err(AppError::invalid("name", "must not be empty"));
+    }
+    if request.experiment.kind.trim().is_empty() {
+        return Err(AppError::invalid("experiment.kind", "must not be empty"));
+    }
+    if request.response.trim().is_empty() {
+        return Err(AppError::invalid("response", "must not be empty"));
+    }
+    if let Some(target) = request.target {
+        if !target.is_finite() {
+            return Err(AppError::invalid("target", "must be a finite number"));
+        }
+    }
+    if request.replicates == 0 {
+        return Err(AppError::invalid("replicates", "must be at least 1"));
+    }
+    let factors = validate_factors(&request)?;
+    let names: Vec<&str> = factors.iter().map(|f| f.name.as_str()).collect();
+    let model = Model::new(&names, model_kind(request.model))
+        .map_err(|err| AppError::invalid("factors", err.to_string()))?;
+
+    let design = build_design(&request.design, &factors, &names)?;
+    let design_points = design.run_count();
+    let total_runs = design_points.saturating_mul(request.replicates as usize);
+    if total_runs > MAX_RUNS_PER_BATCH {
+        return Err(AppError::invalid(
+            "replicates",
+            format!(
+                "{design_points} design points × {} replicates = {total_runs} runs exceeds the \
+                 limit of {MAX_RUNS_PER_BATCH}",
+                request.replicates
+            ),
+        ));
+    }
+    check_model_is_estimable(&model, &design, request.replicates as usize, request.model)?;
+
+    let base_seed = request.seed.unwrap_or(fallback_seed);
+    let randomized = design.randomized(base_seed);
+    let replicated = replicate(&randomized, request.replicates as usize, base_seed)
+        .map_err(|err| design_error(err, &request.design))?;
+    let runs = replicated
+        .into_iter()
+        .map(|run| -> Result<PlannedRun, AppError> {
+            let natural = factors
+                .iter()
+                .zip(&run.coded)
+                .map(|(factor, &coded)| factor.to_natural(coded))
+                .collect::<Result<Vec<f64>, DesignError>>()
+                .map_err(|err| design_error(err, &request.design))?;
+            let spec = apply_factor_values(
+                &request.experiment.spec,
+                request
+                    .factors
+                    .iter()
+                    .zip(&natural)
+                    .map(|(factor, &value)| (factor.path.as_str(), value)),
+            )
+            .map_err(|err| AppError::invalid("factors", err.to_string()))?;
+            Ok(PlannedRun {
+                run_index: run.run_index,
+                design_row: randomized.standard_order()[run.design_row],
+                replicate: run.replicate,
+                coded: run.coded,
+                natural,
+                seed: run.seed,
+                spec,
+            })
+        })
+        .collect::<Result<Vec<_>, AppError>>()?;
+
+    Ok(PlannedBatch {
+        factors,
+        design_kind: design.kind(),
+        base_seed,
+        runs,
+        request,
+    })
+}
+
+fn validate_factors(request: &BatchRequest) -> Result<Vec<Factor>, AppError> {
+    if request.factors.is_empty() {
+        return Err(AppError::invalid(
+            "factors",
+            "at least one factor is required",
+        ));
+    }
+    let mut factors = Vec::with_capacity(request.factors.len());
+    for (i, spec) in request.factors.iter().enumerate() {
+        if spec.name.trim().is_empty() {
+            return Err(AppError::invalid(
+                format!("factors[{i}].name"),
+                "must not be empty",
+            ));
+        }
+        if request.factors[..i].iter().any(|f| f.name == spec.name) {
+            return Err(AppError::invalid(
+                format!("factors[{i}].name"),
+                format!("factor name `{}` is used twice", spec.name),
+            ));
+        }
+        if request.factors[..i].iter().any(|f| f.path == spec.path) {
+            return Err(AppError::invalid(
+                format!("factors[{i}].path"),
+                format!("path `{}` is already varied by another factor", spec.path),
+            ));
+        }
+        for (field, value) in [("low", spec.low), ("high", spec.high)] {
+            if !value.is_finite() {
+                return Err(AppError::invalid(
+                    format!("factors[{i}].{field}"),
+                    "must be a finite number",
+                ));
+            }
+        }
+        if spec.low >= spec.high {
+            return Err(AppError::invalid(
+                format!("factors[{i}].low"),
+                format!(
+                    "low ({}) must be less than high ({}) for factor `{}`",
+                    spec.low, spec.high, spec.name
+                ),
+            ));
+        }
+        apply_factor_values(&request.experiment.spec, [(spec.path.as_str(), spec.low)])
+            .map_err(|err| AppError::invalid(format!("factors[{i}].path"), err.to_string()))?;
+        let factor = Factor::new(spec.name.clone(), spec.low, spec.high)
+            .map_err(|err| AppError::invalid(format!("factors[{i}]"), err.to_string()))?;
+        factors.push(factor);
+    }
+    Ok(factors)
+}
+
+fn build_design(
+    request: &DesignRequest,
+    factors: &[Factor],
+    names: &[&str],
+) -> Result<Design, AppError> {
+    let design = match request {
+        DesignRequest::Factorial => full_factorial(names),
+        DesignRequest::PlackettBurman { runs } => match runs {
+            Some(runs) => plackett_burman(names, *runs),
+            None => smallest_plackett_burman_runs(names.len())
+                .and_then(|runs| plackett_burman(names, runs)),
+        },
+        DesignRequest::BoxBehnken { centre_points } => match centre_points {
+            Some(centre_points) => box_behnken(names, *centre_points),
+            None => default_box_behnken_centre_points(names.len())
+                .and_then(|centre_points| box_behnken(names, centre_points)),
+        },
+        DesignRequest::CentralComposite {
+            variant,
+            centre_points,
+        } => central_composite(names, ccd_variant(*variant), *centre_points),
+        DesignRequest::Explicit { points } => Design::custom_natural(factors, points),
+    };
+    design.map_err(|err| design_error(err, request))
+}
+
+fn ccd_variant(variant: CcdVariantName) -> CcdVariant {
+    match variant {
+        CcdVariantName::Circumscribed => CcdVariant::Circumscribed,
+        CcdVariantName::FaceCentred => CcdVariant::FaceCentred,
+        CcdVariantName::Inscribed => CcdVariant::Inscribed,
+    }
+}
+
+/// Blames the request field a `repose-doe` design error is about.
+fn design_error(err: DesignError, request: &DesignRequest) -> AppError {
+    let parameter = match &err {
+        DesignError::InvalidParameter { parameter, .. }
+        | DesignError::NonFinite { parameter, .. }
+        | DesignError::LengthMismatch { parameter, .. } => parameter.as_str(),
+        DesignError::InvalidFactorRange { .. } => "factors",
+    };
+    let field = if parameter == "factor_names" || parameter == "factors" {
+        "factors".to_owned()
+    } else if let Some(rest) = parameter.strip_prefix("rows") {
+        if matches!(request, DesignRequest::Explicit { .. }) {
+            format!("design.points{rest}")
+        } else {
+            "design".to_owned()
+        }
+    } else if matches!(parameter, "runs" | "centre_points") {
+        format!("design.{parameter}")
+    } else {
+        "design".to_owned()
+    };
+    AppError::invalid(field, err.to_string())
+}
+
+/// Rejects designs that cannot estimate the requested model, by fitting it to a synthetic
+/// response: the fit's own checks (too few runs, aliased terms, constant factors) are the
+/// authority, so the server cannot disagree with the analysis it will run at the end.
+fn check_model_is_estimable(
+    model: &Model,
+    design: &Design,
+    replicates: usize,
+    model_name: ModelName,
+) -> Result<(), AppError> {
+    let rows: Vec<&[f64]> = (0..replicates)
+        .flat_map(|_| design.coded_runs().iter().map(Vec::as_slice))
+        .collect();
+    let mut state = 0x5eed_u64;
+    let synthetic: Vec<f64> = rows
+        .iter()
+        .map(|_| {
+            state = splitmix64(state);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        })
+        .collect();
+    match repose_doe::fit(model, &rows, &synthetic) {
+        Ok(_) => Ok(()),
+        Err(err @ FitError::ConstantFactor { .. }) => Err(AppError::invalid(
+            "design",
+            format!("the design cannot be analysed: {err}"),
+        )),
+        Err(err) => Err(AppError::invalid(
+            "model",
+            format!(
+                "the design cannot estimate the {} model: {err}",
+                model_label(model_name)
+            ),
+        )),
+    }
+}
+
+/// The wire spelling of a model name.
+pub fn model_label(model: ModelName) -> &'static str {
+    match model {
+        ModelName::Linear => "linear",
+        ModelName::TwoFactorInteraction => "2fi",
+        ModelName::Quadratic => "quadratic",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn request(design: Value, model: &str) -> BatchRequest {
+        serde_json::from_value(json!({
+            "name": "t",
+            "experiment": {"kind": "aor", "spec": {"mat": {"mu": 0.3, "e": 0.5}}},
+            "factors": [
+                {"name": "mu", "path": "mat.mu", "low": 0.2, "high": 0.6},
+                {"name": "e", "path": "mat.e", "low": 0.3, "high": 0.9}
+            ],
+            "design": design,
+            "replicates": 2,
+            "response": "angle_deg",
+            "model": model,
+            "seed": 11
+        }))
+        .unwrap()
+    }
+
+    #[test]
+    fn factorial_with_replicates_has_distinct_seeds_and_applied_specs() {
+        let plan = plan_batch(request(json!({"type": "factorial"}), "linear"), 0).unwrap();
+        assert_eq!(plan.runs.len(), 8);
+        let mut seeds: Vec<u64> = plan.runs.iter().map(|r| r.seed).collect();
+        seeds.sort_unstable();
+        seeds.dedup();
+        assert_eq!(seeds.len(), 8);
+        for run in &plan.runs {
+            assert_eq!(run.spec["mat"]["mu"].as_f64().unwrap(), run.natural[0]);
+            assert_eq!(run.spec["mat"]["e"].as_f64().unwrap(), run.natural[1]);
+        }
+    }
+
+    #[test]
+    fn quadratic_on_a_two_level_factorial_is_rejected_naming_the_model() {
+        let err = plan_batch(request(json!({"type": "factorial"}), "quadratic"), 0).unwrap_err();
+        assert!(
+            matches!(&err, AppError::Invalid { field: Some(f), .. } if f == "model"),
+            "{err:?}"
+        );
+    }
+
+    #[test]
+    fn explicit_points_with_a_short_row_name_the_row() {
+        let err = plan_batch(
+            request(
+                json!({"type": "explicit", "points": [[0.2, 0.3], [0.4]]}),
+                "linear",
+            ),
+            0,
+        )
+        .unwrap_err();
+        assert!(
+            matches!(&err, AppError::Invalid { field: Some(f), .. } if f == "design.points[1]"),
+            "{err:?}"
+        );
+    }
+}
