@@ -6,6 +6,7 @@ mod aor_cmd;
 mod bench_cmd;
 mod design_cmd;
 mod levels;
+mod server_cmd;
 mod sim;
 mod table;
 
@@ -35,6 +36,8 @@ enum Command {
     Bench(bench_cmd::BenchArgs),
     /// Angle-of-repose virtual experiment (funnel or lifted cylinder), measured automatically.
     Aor(aor_cmd::AorArgs),
+    /// Run the job server (REST API, SQLite) until Ctrl-C or SIGTERM.
+    Server(server_cmd::ServerArgs),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +47,7 @@ fn main() -> ExitCode {
         Command::Analyze(args) => analyze::run(&args),
         Command::Sim(args) => sim::run(&args),
         Command::Bench(args) => bench_cmd::run(&args),
+        Command::Server(args) => server_cmd::run(&args),
         Command::Aor(args) => aor_cmd::run(&args),
     };
     match result {

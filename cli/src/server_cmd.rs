@@ -1,0 +1,82 @@
+//! `repose server`: the lab's job server (REST API over SQLite) until Ctrl-C or SIGTERM.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use repose_server::{serve, Config};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Debug, Args)]
+pub struct ServerArgs {
+    /// Address to listen on.
+    #[arg(long, env = "REPOSE_LISTEN", default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    /// SQLite database file (created and migrated if missing).
+    #[arg(long, env = "REPOSE_DB", default_value = "repose.db")]
+    pub db: PathBuf,
+    /// Lease length, seconds: a job whose worker stops heartbeating is re-queued after this.
+    #[arg(long, env = "REPOSE_LEASE_S", default_value_t = 60.0)]
+    pub lease_s: f64,
+    /// Attempts before a failing job is marked dead.
+    #[arg(long, env = "REPOSE_MAX_ATTEMPTS", default_value_t = 3)]
+    pub max_attempts: u32,
+}
+
+/// The validated server configuration (checked once, before anything starts).
+fn config(args: &ServerArgs) -> Result<Config> {
+    if !(args.lease_s.is_finite() && args.lease_s >= 1.0) {
+        bail!("--lease-s must be at least 1 second, got {}", args.lease_s);
+    }
+    if args.max_attempts == 0 {
+        bail!("--max-attempts must be at least 1");
+    }
+    let mut config = Config::new(args.db.clone());
+    config.listen = args.listen;
+    config.lease = Duration::from_secs_f64(args.lease_s);
+    config.max_attempts = args.max_attempts;
+    Ok(config)
+}
+
+pub fn run(args: &ServerArgs) -> Result<()> {
+    let config = config(args)?;
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(config.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", config.listen))?;
+        let address = listener.local_addr()?;
+        // The first stdout line says where the server is, so scripts can find an ephemeral port.
+        println!("listening on http://{address}");
+        serve(config, listener, shutdown_signal())
+            .await
+            .context("server failed")
+    })
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = terminate => {},
+    }
+}
