@@ -5,14 +5,14 @@
 //! the key `angle_deg` is the mean flank angle) and writes `result.json`, `pile.svg` (side view
 //! with the fitted flank lines; axes in mm) and `final.csv` (every grain) into `--out`.
 
+use crate::sim::write_file;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{run_aor, AorSpec, Control};
-use std::fs::File;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::Write;
+use std::path::PathBuf;
 
 #[derive(Debug, Args)]
 pub struct AorArgs {
@@ -129,15 +129,4 @@ pub fn run(args: &AorArgs) -> Result<()> {
     })?;
     println!("{json}");
     Ok(())
-}
-
-fn write_file(
-    path: &Path,
-    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
-) -> Result<()> {
-    let file = File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-    let mut w = BufWriter::new(file);
-    body(&mut w)
-        .and_then(|()| w.flush())
-        .with_context(|| format!("cannot write {}", path.display()))
 }

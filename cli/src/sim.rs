@@ -169,7 +169,8 @@ pub fn run(args: &SimArgs) -> Result<()> {
     Ok(())
 }
 
-fn write_file(
+/// Creates `path` and writes it through a buffer; errors name the file.
+pub fn write_file(
     path: &Path,
     body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 ) -> Result<()> {
