@@ -27,8 +27,14 @@ fn aor_writes_result_svg_and_csv() {
     assert!(file.get("angle_deg").is_some());
     assert!(file["status"].is_string());
     assert!(file["grains"]["inserted"]["count"].as_u64().unwrap() > 400);
-    let svg = std::fs::read_to_string(out.join("pile.svg")).unwrap();
-    assert!(svg.contains("<svg"));
+    // A small pour may not form a measurable heap; then there is no angle and no picture.
+    if file["angle_deg"].is_number() {
+        let svg = std::fs::read_to_string(out.join("pile.svg")).unwrap();
+        assert!(svg.contains("<svg"));
+    } else {
+        assert_ne!(file["status"], "ok");
+        assert!(!out.join("pile.svg").exists());
+    }
     let csv = std::fs::read_to_string(out.join("final.csv")).unwrap();
     assert!(csv.lines().count() > 400);
 }
