@@ -98,7 +98,8 @@ pub fn to_coded(factors: &[Factor], natural_run: &[f64]) -> DesignResult<Vec<f64
         .collect()
 }
 
-fn check_lengths(parameter: &str, expected: usize, actual: usize) -> DesignResult<()> {
+/// Error unless a vector has the length its factors require.
+pub(crate) fn check_lengths(parameter: &str, expected: usize, actual: usize) -> DesignResult<()> {
     if expected == actual {
         Ok(())
     } else {

@@ -13,6 +13,7 @@
 //! The coefficients are plain `f64` (one per factor, coded units) so this module does not depend
 //! on the regression types in the rest of the crate.
 
+use super::coding::check_lengths;
 use super::{require_finite, DesignError, DesignResult, Factor};
 use serde::{Deserialize, Serialize};
 
@@ -135,7 +136,7 @@ impl SteepestPathSpec {
         for factor in &self.factors {
             factor.validate()?;
         }
-        check_len("coefficients", k, self.coefficients.len())?;
+        check_lengths("coefficients", k, self.coefficients.len())?;
         for (i, &b) in self.coefficients.iter().enumerate() {
             require_finite(format!("coefficients[{i}]"), b)?;
         }
@@ -196,7 +197,7 @@ impl SteepestPathSpec {
 
         let start = match &self.start {
             Some(start) => {
-                check_len("start", k, start.len())?;
+                check_lengths("start", k, start.len())?;
                 for (i, &x) in start.iter().enumerate() {
                     require_finite(format!("start[{i}]"), x)?;
                 }
@@ -254,7 +255,7 @@ impl SteepestPathSpec {
                 Ok(Some(self.factors.iter().map(|f| (f.low, f.high)).collect()))
             }
             PathClamp::Bounds(bounds) => {
-                check_len("clamp bounds", self.factors.len(), bounds.len())?;
+                check_lengths("clamp bounds", self.factors.len(), bounds.len())?;
                 for (i, &(min, max)) in bounds.iter().enumerate() {
                     require_finite(format!("bounds[{i}].min"), min)?;
                     require_finite(format!("bounds[{i}].max"), max)?;
@@ -322,18 +323,6 @@ pub fn round_to_decimals(value: f64, decimals: u32) -> f64 {
     let scaled = value * scale;
     let snapped = (scaled * 1e9).round() / 1e9;
     snapped.round() / scale
-}
-
-fn check_len(parameter: &str, expected: usize, actual: usize) -> DesignResult<()> {
-    if expected == actual {
-        Ok(())
-    } else {
-        Err(DesignError::LengthMismatch {
-            parameter: parameter.into(),
-            expected,
-            actual,
-        })
-    }
 }
 
 #[cfg(test)]
