@@ -54,8 +54,18 @@ fn default_replicates() -> u32 {
 pub struct ExperimentTemplate {
     /// Experiment type understood by the workers: `aor`, `drill`, `table_lookup`, …
     pub kind: String,
-    /// The experiment's own document; factor values are written into it at their paths.
+    /// Named starting point for the spec (e.g. `fast` or `default` for `aor`); `spec` is merged
+    /// over it, so it need only give what differs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preset: Option<String>,
+    /// The experiment's own document (or the part that differs from the preset); factor values
+    /// are written into the completed spec at their paths.
+    #[serde(default = "empty_object")]
     pub spec: Value,
+}
+
+fn empty_object() -> Value {
+    Value::Object(serde_json::Map::new())
 }
 
 /// One varied parameter and its natural range.
@@ -388,6 +398,10 @@ pub struct Failure {
     pub lease_token: Uuid,
     /// What went wrong, for the run table.
     pub error: String,
+    /// Rerunning cannot help (the experiment is deterministic for its spec and seed, e.g. the
+    /// heap never settled): the run is marked dead at once instead of retried.
+    #[serde(default)]
+    pub permanent: bool,
 }
 
 /// Give a job back without it counting as an attempt (e.g. the worker is shutting down).

@@ -11,6 +11,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{run_aor, AorSpec, Control};
+use repose_experiments::catalog::merge_json;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -50,7 +51,7 @@ fn effective_spec(args: &AorArgs) -> Result<AorSpec> {
             let base = serde_json::to_value(AorSpec::preset(&args.preset)?)?;
             let given: serde_json::Value = serde_json::from_str(&text)
                 .with_context(|| format!("invalid spec {}", path.display()))?;
-            let merged = merge(base, given);
+            let merged = merge_json(base, given);
             serde_json::from_value(merged)
                 .with_context(|| format!("invalid spec {}", path.display()))?
         }
@@ -59,25 +60,6 @@ fn effective_spec(args: &AorArgs) -> Result<AorSpec> {
     spec.apply_assignments(args.set.iter().map(String::as_str))?;
     spec.validate()?;
     Ok(spec)
-}
-
-/// `over` wins; objects merge key by key (so a spec file may give only what differs).
-fn merge(base: serde_json::Value, over: serde_json::Value) -> serde_json::Value {
-    use serde_json::Value;
-    match (base, over) {
-        (Value::Object(mut b), Value::Object(o)) => {
-            for (k, v) in o {
-                let merged = match b.remove(&k) {
-                    // A tagged enum given whole (e.g. `particle`) replaces the old one.
-                    Some(old) if v.get("kind").is_none() => merge(old, v),
-                    _ => v,
-                };
-                b.insert(k, merged);
-            }
-            Value::Object(b)
-        }
-        (_, o) => o,
-    }
 }
 
 pub fn run(args: &AorArgs) -> Result<()> {

@@ -1,5 +1,9 @@
 //! Virtual experiments run on the DEM engine, and the measurements that turn their final
 //! particle states into numbers (angle of repose, hole metrics). No I/O: pictures are
 //! returned as SVG text for the caller to write.
+//!
+//! [`catalog`] puts every experiment kind behind one interface for the job server and workers.
 
 pub mod aor;
+pub mod catalog;
+pub mod replay;

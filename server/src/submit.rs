@@ -10,6 +10,7 @@ use repose_doe::design::{
     DesignError, DesignKind, Factor,
 };
 use repose_doe::{FitError, Model, ModelKind};
+use repose_experiments::catalog::{prepare_spec, validate_spec, ExperimentError};
 use serde_json::Value;
 
 use crate::error::AppError;
@@ -79,7 +80,8 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     if request.replicates == 0 {
         return Err(AppError::invalid("replicates", "must be at least 1"));
     }
-    let factors = validate_factors(&request)?;
+    let template = prepare_template(&request)?;
+    let factors = validate_factors(&request, &template)?;
     let names: Vec<&str> = factors.iter().map(|f| f.name.as_str()).collect();
     let model = Model::new(&names, model_kind(request.model))
         .map_err(|err| AppError::invalid("factors", err.to_string()))?;
@@ -113,7 +115,7 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
                 .collect::<Result<Vec<f64>, DesignError>>()
                 .map_err(|err| design_error(err, &request.design))?;
             let spec = apply_factor_values(
-                &request.experiment.spec,
+                &template,
                 request
                     .factors
                     .iter()
@@ -121,6 +123,7 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
                     .map(|(factor, &value)| (factor.path.as_str(), value)),
             )
             .map_err(|err| AppError::invalid("factors", err.to_string()))?;
+            check_run_spec(&request, &spec, &natural)?;
             Ok(PlannedRun {
                 run_index: run.run_index,
                 design_row: randomized.standard_order()[run.design_row],
@@ -142,7 +145,57 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     })
 }
 
-fn validate_factors(request: &BatchRequest) -> Result<Vec<Factor>, AppError> {
+/// The complete experiment spec (preset + overrides), checked by the experiment catalog.
+fn prepare_template(request: &BatchRequest) -> Result<Value, AppError> {
+    let experiment = &request.experiment;
+    prepare_spec(
+        &experiment.kind,
+        experiment.preset.as_deref(),
+        &experiment.spec,
+    )
+    .map_err(|err| match err {
+        ExperimentError::UnknownKind { .. } => {
+            AppError::invalid("experiment.kind", err.to_string())
+        }
+        ExperimentError::UnknownPreset { .. } => {
+            AppError::invalid("experiment.preset", err.to_string())
+        }
+        ExperimentError::InvalidSpec {
+            path: Some(ref path),
+            ..
+        } => AppError::invalid(format!("experiment.spec.{path}"), err.to_string()),
+        _ => AppError::invalid("experiment.spec", err.to_string()),
+    })
+}
+
+/// A run's spec must still be valid with its factor values written in (a friction range may
+/// reach below zero); the error blames the factor whose path the experiment rejected.
+fn check_run_spec(request: &BatchRequest, spec: &Value, natural: &[f64]) -> Result<(), AppError> {
+    let Err(err) = validate_spec(&request.experiment.kind, spec) else {
+        return Ok(());
+    };
+    let blamed = match &err {
+        ExperimentError::InvalidSpec {
+            path: Some(path), ..
+        } => request.factors.iter().position(|f| &f.path == path),
+        _ => None,
+    };
+    Err(match blamed {
+        Some(i) => AppError::invalid(
+            format!("factors[{i}]"),
+            format!(
+                "the design sets `{}` to {}, which the experiment rejects: {err}",
+                request.factors[i].name, natural[i]
+            ),
+        ),
+        None => AppError::invalid(
+            "experiment.spec",
+            format!("a run's spec is invalid with the design's factor values: {err}"),
+        ),
+    })
+}
+
+fn validate_factors(request: &BatchRequest, template: &Value) -> Result<Vec<Factor>, AppError> {
     if request.factors.is_empty() {
         return Err(AppError::invalid(
             "factors",
@@ -186,7 +239,7 @@ fn validate_factors(request: &BatchRequest) -> Result<Vec<Factor>, AppError> {
                 ),
             ));
         }
-        apply_factor_values(&request.experiment.spec, [(spec.path.as_str(), spec.low)])
+        apply_factor_values(template, [(spec.path.as_str(), spec.low)])
             .map_err(|err| AppError::invalid(format!("factors[{i}].path"), err.to_string()))?;
         let factor = Factor::new(spec.name.clone(), spec.low, spec.high)
             .map_err(|err| AppError::invalid(format!("factors[{i}]"), err.to_string()))?;
@@ -306,10 +359,10 @@ mod tests {
     fn request(design: Value, model: &str) -> BatchRequest {
         serde_json::from_value(json!({
             "name": "t",
-            "experiment": {"kind": "aor", "spec": {"mat": {"mu": 0.3, "e": 0.5}}},
+            "experiment": {"kind": "aor", "preset": "fast"},
             "factors": [
-                {"name": "mu", "path": "mat.mu", "low": 0.2, "high": 0.6},
-                {"name": "e", "path": "mat.e", "low": 0.3, "high": 0.9}
+                {"name": "mu", "path": "soil_soil.static_friction", "low": 0.2, "high": 0.6},
+                {"name": "e", "path": "soil_soil.restitution", "low": 0.3, "high": 0.9}
             ],
             "design": design,
             "replicates": 2,
@@ -329,8 +382,15 @@ mod tests {
         seeds.dedup();
         assert_eq!(seeds.len(), 8);
         for run in &plan.runs {
-            assert_eq!(run.spec["mat"]["mu"].as_f64().unwrap(), run.natural[0]);
-            assert_eq!(run.spec["mat"]["e"].as_f64().unwrap(), run.natural[1]);
+            let friction = &run.spec["soil_soil"]["static_friction"];
+            assert_eq!(friction.as_f64().unwrap(), run.natural[0]);
+            let restitution = &run.spec["soil_soil"]["restitution"];
+            assert_eq!(restitution.as_f64().unwrap(), run.natural[1]);
+            assert_eq!(
+                run.spec["total_mass"],
+                json!(0.03),
+                "the fast preset fills the rest"
+            );
         }
     }
 
@@ -355,6 +415,24 @@ mod tests {
         .unwrap_err();
         assert!(
             matches!(&err, AppError::Invalid { field: Some(f), .. } if f == "design.points[1]"),
+            "{err:?}"
+        );
+    }
+
+    #[test]
+    fn unknown_kind_and_a_factor_range_the_experiment_rejects_are_named() {
+        let mut bad_kind = request(json!({"type": "factorial"}), "linear");
+        bad_kind.experiment.kind = "cook".into();
+        let err = plan_batch(bad_kind, 0).unwrap_err();
+        assert!(
+            matches!(&err, AppError::Invalid { field: Some(f), .. } if f == "experiment.kind"),
+            "{err:?}"
+        );
+        let mut negative = request(json!({"type": "factorial"}), "linear");
+        negative.factors[0].low = -0.2;
+        let err = plan_batch(negative, 0).unwrap_err();
+        assert!(
+            matches!(&err, AppError::Invalid { field: Some(f), .. } if f == "factors[0]"),
             "{err:?}"
         );
     }

@@ -342,6 +342,24 @@ async fn malformed_submissions_get_4xx_naming_the_field() {
         "factors[0].low",
     )
     .await;
+    expect_field(
+        valid.clone(),
+        &|r| r["experiment"]["kind"] = json!("cook"),
+        "experiment.kind",
+    )
+    .await;
+    expect_field(
+        valid.clone(),
+        &|r| r["experiment"]["spec"]["total_mass"] = json!(-1.0),
+        "experiment.spec.total_mass",
+    )
+    .await;
+    expect_field(
+        valid.clone(),
+        &|r| r["factors"][0]["low"] = json!(-0.5),
+        "factors[0]",
+    )
+    .await;
     expect_field(valid.clone(), &|r| r["model"] = json!("quadratic"), "model").await;
     expect_field(valid.clone(), &|r| r["model"] = json!("cubic"), "model").await;
     expect_field(valid.clone(), &|r| r["factors"] = json!([]), "factors").await;

@@ -514,6 +514,45 @@ impl AorSpec {
                 Err(invalid(path, format!("must be finite and > 0, got {v}")))
             }
         };
+        for (name, pair) in [
+            ("soil_soil", &self.soil_soil),
+            ("soil_steel", &self.soil_steel),
+        ] {
+            let e = pair.restitution;
+            if !(e > 0.0 && e <= 1.0) {
+                return Err(invalid(
+                    &format!("{name}.restitution"),
+                    format!("must be in (0, 1], got {e}"),
+                ));
+            }
+            for (field, v) in [
+                ("static_friction", pair.static_friction),
+                ("rolling_friction", pair.rolling_friction),
+            ] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(invalid(
+                        &format!("{name}.{field}"),
+                        format!("must be finite and >= 0, got {v}"),
+                    ));
+                }
+            }
+        }
+        for (name, m) in [
+            ("soil", &self.materials.soil),
+            ("steel", &self.materials.steel),
+        ] {
+            positive(&format!("materials.{name}.density"), m.density)?;
+            positive(
+                &format!("materials.{name}.youngs_modulus"),
+                m.youngs_modulus,
+            )?;
+            if !(m.poisson > -1.0 && m.poisson < 0.5) {
+                return Err(invalid(
+                    &format!("materials.{name}.poisson"),
+                    format!("must be in (-1, 0.5), got {}", m.poisson),
+                ));
+            }
+        }
         positive("total_mass", self.total_mass)?;
         positive("mass_rate", self.mass_rate)?;
         positive("time_cap", self.time_cap)?;

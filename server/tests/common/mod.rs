@@ -184,8 +184,8 @@ impl TestServer {
 
 /// The fake DEM run: angle = 20 + 25 μ − 8 e + seed-dependent noise of ±0.1°.
 pub fn angle_for(spec: &Value, seed: u64) -> f64 {
-    let mu = spec["material"]["mu"].as_f64().unwrap();
-    let e = spec["material"]["e"].as_f64().unwrap();
+    let mu = spec["soil_soil"]["static_friction"].as_f64().unwrap();
+    let e = spec["soil_soil"]["restitution"].as_f64().unwrap();
     let noise = ((seed % 1000) as f64 / 1000.0 - 0.5) * 0.2;
     20.0 + 25.0 * mu - 8.0 * e + noise
 }
@@ -217,11 +217,12 @@ pub fn batch_request(design: Value, model: &str, replicates: u32) -> Value {
         "name": "sand AOR",
         "experiment": {
             "kind": "aor",
-            "spec": {"material": {"mu": 0.5, "e": 0.5, "density": 2650.0}, "particles": 2000}
+            "preset": "fast",
+            "spec": {"total_mass": 0.02}
         },
         "factors": [
-            {"name": "mu", "path": "material.mu", "low": 0.2, "high": 0.6},
-            {"name": "e", "path": "material.e", "low": 0.3, "high": 0.9}
+            {"name": "mu", "path": "soil_soil.static_friction", "low": 0.2, "high": 0.6},
+            {"name": "e", "path": "soil_soil.restitution", "low": 0.3, "high": 0.9}
         ],
         "design": design,
         "replicates": replicates,

@@ -4,29 +4,17 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::OnceLock;
 
-/// Path to the `repose` binary, built (once per test binary) with the profile the tests use.
+/// Path to the `repose` binary cargo built for these tests.
 pub fn repose_bin() -> &'static Path {
-    static BIN: OnceLock<PathBuf> = OnceLock::new();
-    BIN.get_or_init(|| {
-        escargot::CargoBuild::new()
-            .package("repose")
-            .bin("repose")
-            .current_release()
-            .current_target()
-            .manifest_path(workspace_root().join("Cargo.toml"))
-            .run()
-            .expect("building the repose binary")
-            .path()
-            .to_path_buf()
-    })
+    Path::new(env!("CARGO_BIN_EXE_repose"))
 }
 
 pub fn workspace_root() -> PathBuf {
+    // The tests are targets of the `cli` package.
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
-        .expect("tests/ has a parent")
+        .expect("cli/ has a parent")
         .to_path_buf()
 }
 

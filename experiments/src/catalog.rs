@@ -1,0 +1,321 @@
+//! The experiment kinds a job can name, behind one interface: the server uses
+//! [`prepare_spec`] and [`validate_spec`] at submission (so a bad spec is a 422, not a dead
+//! job), a worker uses [`run_experiment`] to turn a leased job into metrics.
+//!
+//! Specs travel as JSON because the job server stores and edits them (factor values are
+//! written at dotted paths) without knowing each kind's Rust type.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::aor::{run_aor, AorSpec, Control, RunStatus};
+use crate::replay::{ReplayError, ReplaySpec};
+
+/// Kinds understood by [`run_experiment`].
+pub const KINDS: [&str; 2] = ["aor", "table_lookup"];
+
+/// Why a spec cannot be used or a run could not produce a result.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ExperimentError {
+    /// Not one of [`KINDS`].
+    #[error("unknown experiment kind {kind:?} (kinds: {})", KINDS.join(", "))]
+    UnknownKind { kind: String },
+    /// The kind has no such preset.
+    #[error("unknown preset {preset:?} for kind {kind:?} (presets: {valid})")]
+    UnknownPreset {
+        kind: String,
+        preset: String,
+        valid: String,
+    },
+    /// The spec document is not valid for its kind; `path` names the offending field when known.
+    #[error("{message}")]
+    InvalidSpec {
+        path: Option<String>,
+        message: String,
+    },
+    /// The experiment ran but gave no usable result. Rerunning the same spec and seed gives the
+    /// same outcome, so a job server should not retry it.
+    #[error("{message}")]
+    NoResult {
+        message: String,
+        /// The kind's full result document, for the run record.
+        details: Value,
+    },
+    /// The progress callback cancelled the run.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// What a finished experiment reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Outcome {
+    /// Scalar results, e.g. `angle_deg`; a batch's response is one of these.
+    pub metrics: BTreeMap<String, f64>,
+    /// The kind's full result document.
+    pub details: Value,
+    /// Pictures worth keeping, `(file name, SVG text)`.
+    #[serde(skip)]
+    pub pictures: Vec<(String, String)>,
+    /// Seconds a worker should keep the job before reporting (the table-lookup test aid's
+    /// stand-in for simulation time); 0 for real experiments.
+    pub hold_s: f64,
+}
+
+/// Presets a kind offers (the first is its default).
+pub fn presets(kind: &str) -> Result<&'static [&'static str], ExperimentError> {
+    match kind {
+        "aor" => Ok(&crate::aor::PRESETS),
+        "table_lookup" => Ok(&[]),
+        other => Err(unknown_kind(other)),
+    }
+}
+
+/// The complete spec for `kind`: `overrides` merged over `preset` (objects key by key, see
+/// [`merge_json`]), checked. Without a preset the overrides must be a complete spec, except for
+/// `aor`, whose default preset fills in what is missing.
+pub fn prepare_spec(
+    kind: &str,
+    preset: Option<&str>,
+    overrides: &Value,
+) -> Result<Value, ExperimentError> {
+    match kind {
+        "aor" => {
+            let base = AorSpec::preset(preset.unwrap_or("default")).map_err(|_| {
+                ExperimentError::UnknownPreset {
+                    kind: kind.into(),
+                    preset: preset.unwrap_or_default().into(),
+                    valid: crate::aor::PRESETS.join(", "),
+                }
+            })?;
+            let base = serde_json::to_value(base).expect("AorSpec serialises");
+            let merged = merge_json(base, overrides.clone());
+            let spec = parse_aor(&merged)?;
+            Ok(serde_json::to_value(spec).expect("AorSpec serialises"))
+        }
+        "table_lookup" => {
+            if let Some(preset) = preset {
+                return Err(ExperimentError::UnknownPreset {
+                    kind: kind.into(),
+                    preset: preset.into(),
+                    valid: "(none)".into(),
+                });
+            }
+            let spec = parse_replay(overrides)?;
+            Ok(serde_json::to_value(spec).expect("ReplaySpec serialises"))
+        }
+        other => Err(unknown_kind(other)),
+    }
+}
+
+/// Checks a complete spec (e.g. after factor values were written into it).
+pub fn validate_spec(kind: &str, spec: &Value) -> Result<(), ExperimentError> {
+    match kind {
+        "aor" => parse_aor(spec).map(drop),
+        "table_lookup" => parse_replay(spec).map(drop),
+        other => Err(unknown_kind(other)),
+    }
+}
+
+/// Runs one experiment with `seed` (overriding any seed in the spec). `progress` receives the
+/// fraction done (0..1) and may cancel. Heavy kinds run on the current rayon pool.
+pub fn run_experiment(
+    kind: &str,
+    spec: &Value,
+    seed: u64,
+    progress: &mut dyn FnMut(f64) -> Control,
+) -> Result<Outcome, ExperimentError> {
+    match kind {
+        "aor" => {
+            let mut spec = parse_aor(spec)?;
+            spec.seed = seed;
+            let run = run_aor(&spec, &mut |p| progress(p.fraction)).map_err(|e| {
+                ExperimentError::InvalidSpec {
+                    path: None,
+                    message: e.to_string(),
+                }
+            })?;
+            let details = serde_json::to_value(&run.result).expect("AorResult serialises");
+            match run.result.status {
+                RunStatus::Ok => {}
+                RunStatus::Cancelled => return Err(ExperimentError::Cancelled),
+                status => {
+                    return Err(ExperimentError::NoResult {
+                        message: format!(
+                            "angle-of-repose run ended {status:?}: {}",
+                            run.result.message.as_deref().unwrap_or("no heap measured")
+                        ),
+                        details,
+                    })
+                }
+            }
+            let mut metrics = BTreeMap::new();
+            let r = &run.result;
+            let scalars = [
+                ("angle_deg", r.angle_deg),
+                ("left_deg", r.left_deg),
+                ("right_deg", r.right_deg),
+                ("projection_mean_deg", r.projection_mean_deg),
+                ("spread_std_deg", r.spread_std_deg),
+                ("pile_height_m", r.pile_height_m),
+                ("base_diameter_m", r.base_diameter_m),
+                ("simulated_time_s", Some(r.simulated_time_s)),
+                ("grains_inserted", Some(r.grains.inserted.count as f64)),
+                ("escaped_mass_kg", Some(r.grains.escaped.mass)),
+            ];
+            for (name, value) in scalars {
+                if let Some(v) = value.filter(|v| v.is_finite()) {
+                    metrics.insert(name.to_owned(), v);
+                }
+            }
+            let pictures = run
+                .pile_svg()
+                .map(|svg| vec![("pile.svg".to_owned(), svg)])
+                .unwrap_or_default();
+            Ok(Outcome {
+                metrics,
+                details,
+                pictures,
+                hold_s: 0.0,
+            })
+        }
+        "table_lookup" => {
+            let spec = parse_replay(spec)?;
+            if progress(0.0) == Control::Cancel {
+                return Err(ExperimentError::Cancelled);
+            }
+            let metrics = spec.look_up(seed).map_err(|e| match e {
+                ReplayError::NoMatch { .. } | ReplayError::Invalid { .. } => {
+                    ExperimentError::NoResult {
+                        message: e.to_string(),
+                        details: Value::Null,
+                    }
+                }
+            })?;
+            Ok(Outcome {
+                details: serde_json::json!({ "replay": true, "values": spec.values }),
+                metrics,
+                pictures: Vec::new(),
+                hold_s: spec.hold_s,
+            })
+        }
+        other => Err(unknown_kind(other)),
+    }
+}
+
+fn unknown_kind(kind: &str) -> ExperimentError {
+    ExperimentError::UnknownKind { kind: kind.into() }
+}
+
+fn parse_aor(spec: &Value) -> Result<AorSpec, ExperimentError> {
+    let spec: AorSpec =
+        serde_json::from_value(spec.clone()).map_err(|e| ExperimentError::InvalidSpec {
+            path: None,
+            message: format!("not a valid aor spec: {e}"),
+        })?;
+    spec.validate().map_err(|e| ExperimentError::InvalidSpec {
+        path: match &e {
+            crate::aor::SpecError::Invalid { path, .. } => Some(path.clone()),
+            _ => None,
+        },
+        message: e.to_string(),
+    })?;
+    Ok(spec)
+}
+
+fn parse_replay(spec: &Value) -> Result<ReplaySpec, ExperimentError> {
+    let spec: ReplaySpec =
+        serde_json::from_value(spec.clone()).map_err(|e| ExperimentError::InvalidSpec {
+            path: None,
+            message: format!("not a valid table_lookup spec: {e}"),
+        })?;
+    spec.validate().map_err(|e| ExperimentError::InvalidSpec {
+        path: match &e {
+            ReplayError::Invalid { path, .. } => Some(path.clone()),
+            ReplayError::NoMatch { .. } => None,
+        },
+        message: e.to_string(),
+    })?;
+    Ok(spec)
+}
+
+/// `over` merged into `base`: objects merge key by key, so a spec may give only what differs
+/// from its preset; anything else (numbers, arrays, a tagged enum such as a size distribution
+/// given whole with its `kind`) replaces the base value.
+pub fn merge_json(base: Value, over: Value) -> Value {
+    match (base, over) {
+        (Value::Object(mut b), Value::Object(o)) => {
+            for (k, v) in o {
+                let merged = match b.remove(&k) {
+                    Some(old) if v.get("kind").is_none() => merge_json(old, v),
+                    _ => v,
+                };
+                b.insert(k, merged);
+            }
+            Value::Object(b)
+        }
+        (_, o) => o,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn aor_overrides_merge_over_the_preset() {
+        let spec = prepare_spec(
+            "aor",
+            Some("fast"),
+            &json!({"soil_soil": {"rolling_friction": 0.3}}),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["rolling_friction"], json!(0.3));
+        assert_eq!(spec["soil_soil"]["static_friction"], json!(0.442));
+        assert_eq!(spec["total_mass"], json!(0.03), "fast preset kept");
+        validate_spec("aor", &spec).unwrap();
+    }
+
+    #[test]
+    fn bad_specs_name_the_problem() {
+        let err = prepare_spec(
+            "aor",
+            None,
+            &json!({"soil_soil": {"static_friction": -1.0}}),
+        )
+        .unwrap_err();
+        match err {
+            ExperimentError::InvalidSpec { path, .. } => {
+                assert_eq!(path.as_deref(), Some("soil_soil.static_friction"))
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+        let err = prepare_spec("aor", None, &json!({"funnel": {"no_such": 1}})).unwrap_err();
+        assert!(err.to_string().contains("no_such"), "{err}");
+        assert!(matches!(
+            prepare_spec("aor", Some("huge"), &json!({})),
+            Err(ExperimentError::UnknownPreset { .. })
+        ));
+        assert!(matches!(
+            prepare_spec("cook", None, &json!({})),
+            Err(ExperimentError::UnknownKind { .. })
+        ));
+    }
+
+    #[test]
+    fn table_lookup_runs_and_reports_misses_as_no_result() {
+        let spec = json!({
+            "values": {"a": 1.0},
+            "rows": [{"a": 1.0, "y": 5.0}, {"a": 2.0, "y": 7.0}]
+        });
+        let spec = prepare_spec("table_lookup", None, &spec).unwrap();
+        let out = run_experiment("table_lookup", &spec, 3, &mut |_| Control::Continue).unwrap();
+        assert_eq!(out.metrics["y"], 5.0);
+        let mut missing = spec.clone();
+        missing["values"]["a"] = json!(1.5);
+        let err = run_experiment("table_lookup", &missing, 3, &mut |_| Control::Continue);
+        assert!(matches!(err, Err(ExperimentError::NoResult { .. })));
+    }
+}
