@@ -369,7 +369,12 @@ async fn fail_job(
             job_id,
             failure.lease_token,
             &failure.error,
-            state.config.max_attempts,
+            // A permanent failure (same spec and seed, same outcome) is not worth a retry.
+            if failure.permanent {
+                0
+            } else {
+                state.config.max_attempts
+            },
             state.config.retry_backoff,
         )
         .await?;

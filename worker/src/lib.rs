@@ -1,1 +1,538 @@
-//! The worker that leases DEM jobs over HTTP. Not built yet: see the job-server issue.
+//! The repose worker: leases jobs from a job server over HTTP, runs each experiment on its own
+//! rayon pool (off the async runtime), heartbeats from a separate task and reports the result.
+//!
+//! Robustness rules, in the order they matter:
+//! - a finished result is never dropped because the server is unreachable: it is re-sent with
+//!   back-off until the server answers (a 409 then means someone else's result won);
+//! - a lost lease (409 on a heartbeat, or `cancel` in the reply) stops the simulation;
+//! - on shutdown the worker stops claiming, cancels what it is running and releases those jobs
+//!   so another worker starts them at once (no attempt is counted).
+//!
+//! ```no_run
+//! # async fn run() -> Result<(), repose_worker::WorkerError> {
+//! let config = repose_worker::WorkerConfig::new("http://127.0.0.1:8080");
+//! let summary = repose_worker::run(config, async {
+//!     let _ = tokio::signal::ctrl_c().await;
+//! })
+//! .await?;
+//! println!("{} jobs done", summary.completed);
+//! # Ok(())
+//! # }
+//! ```
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use rand::Rng;
+use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
+use repose_experiments::aor::Control;
+use repose_experiments::catalog::{run_experiment, ExperimentError, Outcome};
+use tokio::sync::watch;
+use uuid::Uuid;
+
+mod client;
+
+pub use client::{CallError, Client};
+
+/// Worker settings; the command line fills this from its flags.
+#[derive(Debug, Clone)]
+pub struct WorkerConfig {
+    /// Server base URL, e.g. `http://10.0.0.5:8080`.
+    pub server: String,
+    /// Worker token, sent as `Authorization: Bearer`.
+    pub token: Option<String>,
+    /// Jobs run at the same time.
+    pub slots: usize,
+    /// Threads each job's simulation uses.
+    pub threads: usize,
+    /// Host name reported at registration.
+    pub host: String,
+    /// Long-poll wait of each claim.
+    pub claim_wait: Duration,
+    /// Longest pause between retries when the server is unreachable.
+    pub max_backoff: Duration,
+    /// Where to write each run's pictures (`<dir>/<run id>/…`); none: not kept.
+    pub artifacts_dir: Option<PathBuf>,
+}
+
+impl WorkerConfig {
+    /// One slot using every core, 20 s long-polls, back-off up to 30 s.
+    pub fn new(server: impl Into<String>) -> WorkerConfig {
+        WorkerConfig {
+            server: server.into(),
+            token: None,
+            slots: 1,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            host: hostname(),
+            claim_wait: Duration::from_secs(20),
+            max_backoff: Duration::from_secs(30),
+            artifacts_dir: None,
+        }
+    }
+}
+
+/// Best-effort host name (for the run table only).
+pub fn hostname() -> String {
+    std::env::var("HOSTNAME")
+        .ok()
+        .filter(|h| !h.is_empty())
+        .or_else(|| {
+            std::fs::read_to_string("/etc/hostname")
+                .ok()
+                .map(|h| h.trim().to_owned())
+        })
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "unknown".to_owned())
+}
+
+/// Why the worker stopped abnormally.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    /// The settings are unusable.
+    #[error("invalid worker configuration: {0}")]
+    Config(String),
+    /// The server refused the registration (e.g. a bad token).
+    #[error("registration refused: {0}")]
+    Registration(#[source] CallError),
+    /// The HTTP client could not be built.
+    #[error("HTTP client: {0}")]
+    Http(#[from] reqwest::Error),
+}
+
+/// What a worker did before it stopped.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WorkerSummary {
+    /// Results the server accepted.
+    pub completed: u64,
+    /// Attempts reported as failed.
+    pub failed: u64,
+    /// Jobs given back at shutdown.
+    pub released: u64,
+    /// Jobs abandoned because the lease was lost (cancelled batch, expired lease).
+    pub abandoned: u64,
+}
+
+/// Runs the worker until `shutdown` resolves; then releases running jobs and returns.
+pub async fn run(
+    config: WorkerConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<WorkerSummary, WorkerError> {
+    if config.slots == 0 {
+        return Err(WorkerError::Config("slots must be at least 1".into()));
+    }
+    if config.threads == 0 {
+        return Err(WorkerError::Config("threads must be at least 1".into()));
+    }
+    let client = Client::new(&config.server, config.token.clone())?;
+    let (stop_sender, stop) = watch::channel(false);
+    tokio::spawn(async move {
+        shutdown.await;
+        stop_sender.send_replace(true);
+    });
+
+    let registration = WorkerRegistration {
+        instance_id: Uuid::new_v4(),
+        host: config.host.clone(),
+        threads: u32::try_from(config.threads).unwrap_or(u32::MAX),
+        version: env!("CARGO_PKG_VERSION").to_owned(),
+    };
+    let registered = {
+        let mut backoff = Backoff::new(config.max_backoff);
+        loop {
+            match client.register(&registration).await {
+                Ok(r) => break r,
+                Err(e) if e.is_transient() => {
+                    tracing::warn!(error = %e, server = %config.server, "cannot register yet; retrying");
+                    if backoff.wait(&stop).await {
+                        return Ok(WorkerSummary::default());
+                    }
+                }
+                Err(e) => return Err(WorkerError::Registration(e)),
+            }
+        }
+    };
+    let lease = Duration::from_secs_f64(registered.lease_s.max(1.0));
+    tracing::info!(worker = %registered.worker_id, server = %config.server, slots = config.slots,
+        threads = config.threads, "worker registered");
+
+    let context = Arc::new(SlotContext {
+        client,
+        worker_id: registered.worker_id,
+        lease,
+        config,
+        stop,
+    });
+    let slots: Vec<_> = (0..context.config.slots)
+        .map(|slot| tokio::spawn(slot_loop(context.clone(), slot)))
+        .collect();
+    let mut summary = WorkerSummary::default();
+    for slot in slots {
+        if let Ok(s) = slot.await {
+            summary.completed += s.completed;
+            summary.failed += s.failed;
+            summary.released += s.released;
+            summary.abandoned += s.abandoned;
+        }
+    }
+    tracing::info!(?summary, "worker stopped");
+    Ok(summary)
+}
+
+#[derive(Debug)]
+struct SlotContext {
+    client: Client,
+    worker_id: Uuid,
+    lease: Duration,
+    config: WorkerConfig,
+    stop: watch::Receiver<bool>,
+}
+
+async fn slot_loop(context: Arc<SlotContext>, slot: usize) -> WorkerSummary {
+    let mut summary = WorkerSummary::default();
+    let mut backoff = Backoff::new(context.config.max_backoff);
+    while !*context.stop.borrow() {
+        let mut stop = context.stop.clone();
+        let claimed = tokio::select! {
+            claimed = context.client.claim(context.worker_id, context.config.claim_wait) => claimed,
+            _ = stop.wait_for(|s| *s) => break,
+        };
+        match claimed {
+            Ok(Some(job)) => {
+                backoff.reset();
+                tracing::info!(slot, job = %job.job_id, run = %job.run_id, kind = %job.kind,
+                    attempt = job.attempt, "job leased");
+                match run_job(&context, job).await {
+                    JobEnd::Completed => summary.completed += 1,
+                    JobEnd::Failed => summary.failed += 1,
+                    JobEnd::Released => summary.released += 1,
+                    JobEnd::Abandoned => summary.abandoned += 1,
+                }
+            }
+            Ok(None) => backoff.reset(),
+            Err(e) if e.is_transient() => {
+                tracing::warn!(slot, error = %e, "claim failed; retrying");
+                if backoff.wait(&context.stop).await {
+                    break;
+                }
+            }
+            Err(e) => {
+                // A refused claim (bad token, unknown worker) will not fix itself quickly;
+                // wait long and try again rather than spin.
+                tracing::error!(slot, error = %e, "claim refused");
+                backoff.fail_hard();
+                if backoff.wait(&context.stop).await {
+                    break;
+                }
+            }
+        }
+    }
+    summary
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum JobEnd {
+    Completed,
+    Failed,
+    Released,
+    Abandoned,
+}
+
+/// Shared between the simulation thread and the heartbeat task.
+#[derive(Debug, Default)]
+struct JobSignals {
+    /// Fraction done as `f64` bits.
+    progress: AtomicU64,
+    /// Set to stop the simulation.
+    cancel: AtomicBool,
+    /// Why it was cancelled: the lease is gone (don't report) or the worker is stopping
+    /// (release).
+    lease_lost: AtomicBool,
+}
+
+async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
+    let signals = Arc::new(JobSignals::default());
+    let started = Instant::now();
+
+    let heartbeat = tokio::spawn(heartbeat_loop(
+        context.client.clone(),
+        job.job_id,
+        job.lease_token,
+        context.lease,
+        signals.clone(),
+    ));
+    let stopper = {
+        let signals = signals.clone();
+        let mut stop = context.stop.clone();
+        tokio::spawn(async move {
+            if stop.wait_for(|s| *s).await.is_ok() {
+                signals.cancel.store(true, Ordering::SeqCst);
+            }
+        })
+    };
+
+    let outcome = {
+        let signals = signals.clone();
+        let threads = context.config.threads;
+        let (kind, spec, seed) = (job.kind.clone(), job.spec.clone(), job.seed);
+        tokio::task::spawn_blocking(move || simulate(&kind, &spec, seed, threads, &signals)).await
+    };
+    // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
+    if let Ok(Ok(outcome)) = &outcome {
+        let hold = Duration::from_secs_f64(outcome.hold_s);
+        let deadline = tokio::time::Instant::now() + hold;
+        while tokio::time::Instant::now() < deadline && !signals.cancel.load(Ordering::SeqCst) {
+            tokio::time::sleep(Duration::from_millis(50).min(hold)).await;
+        }
+    }
+    stopper.abort();
+    heartbeat.abort();
+    let wall_time_s = started.elapsed().as_secs_f64();
+
+    if signals.lease_lost.load(Ordering::SeqCst) {
+        tracing::warn!(job = %job.job_id, "lease lost (batch cancelled or lease expired); result dropped");
+        return JobEnd::Abandoned;
+    }
+    if signals.cancel.load(Ordering::SeqCst) {
+        // The worker is stopping: give the job back so another worker starts it at once.
+        let release = Release {
+            lease_token: job.lease_token,
+        };
+        let _ = context.client.release(job.job_id, &release).await;
+        tracing::info!(job = %job.job_id, "job released at shutdown");
+        return JobEnd::Released;
+    }
+    match outcome {
+        Ok(Ok(outcome)) => {
+            if let Some(dir) = &context.config.artifacts_dir {
+                save_pictures(dir, job.run_id, &outcome);
+            }
+            let completion = Completion {
+                lease_token: job.lease_token,
+                metrics: outcome.metrics,
+                wall_time_s,
+                details: outcome.details,
+            };
+            deliver(context, job.job_id, "complete", |c| {
+                let completion = completion.clone();
+                async move { c.complete(job.job_id, &completion).await }
+            })
+            .await
+            .map_or(JobEnd::Abandoned, |()| JobEnd::Completed)
+        }
+        Ok(Err(error)) => {
+            let permanent = matches!(
+                error,
+                ExperimentError::NoResult { .. } | ExperimentError::InvalidSpec { .. }
+            );
+            report_failure(context, &job, error.to_string(), permanent).await
+        }
+        Err(join_error) => {
+            let message = if join_error.is_panic() {
+                format!("the simulation panicked: {join_error}")
+            } else {
+                format!("the simulation task stopped: {join_error}")
+            };
+            report_failure(context, &job, message, false).await
+        }
+    }
+}
+
+async fn report_failure(
+    context: &SlotContext,
+    job: &ClaimResponse,
+    error: String,
+    permanent: bool,
+) -> JobEnd {
+    tracing::warn!(job = %job.job_id, %error, permanent, "job failed");
+    let failure = Failure {
+        lease_token: job.lease_token,
+        error,
+        permanent,
+    };
+    deliver(context, job.job_id, "fail", |c| {
+        let failure = failure.clone();
+        async move { c.fail(job.job_id, &failure).await }
+    })
+    .await
+    .map_or(JobEnd::Abandoned, |()| JobEnd::Failed)
+}
+
+/// Sends a final report until the server answers. Transient errors are retried with back-off
+/// for as long as it takes, shutdown or not (the result is the expensive part); a 4xx answer
+/// ends the attempt (`Err`): the server has decided (e.g. another result won, 409).
+async fn deliver<F, Fut>(context: &SlotContext, job_id: Uuid, what: &str, call: F) -> Result<(), ()>
+where
+    F: Fn(Client) -> Fut,
+    Fut: Future<Output = Result<repose_api::JobUpdateResponse, CallError>>,
+{
+    let mut backoff = Backoff::new(context.config.max_backoff);
+    loop {
+        match call(context.client.clone()).await {
+            Ok(update) => {
+                tracing::info!(job = %job_id, status = ?update.status, "{what} accepted");
+                return Ok(());
+            }
+            Err(e) if e.is_transient() => {
+                tracing::warn!(job = %job_id, error = %e, "{what} not delivered; keeping it and retrying");
+                tokio::time::sleep(backoff.next_delay()).await;
+            }
+            Err(e) => {
+                tracing::warn!(job = %job_id, error = %e, "{what} refused");
+                return Err(());
+            }
+        }
+    }
+}
+
+/// Renews the lease every lease/3 with the current progress; flags a lost lease.
+async fn heartbeat_loop(
+    client: Client,
+    job_id: Uuid,
+    lease_token: Uuid,
+    lease: Duration,
+    signals: Arc<JobSignals>,
+) {
+    let period = lease / 3;
+    loop {
+        tokio::time::sleep(period).await;
+        let progress = f64::from_bits(signals.progress.load(Ordering::Relaxed));
+        let beat = Heartbeat {
+            lease_token,
+            progress,
+        };
+        match client.heartbeat(job_id, &beat).await {
+            Ok(reply) if reply.cancel => {
+                signals.lease_lost.store(true, Ordering::SeqCst);
+                signals.cancel.store(true, Ordering::SeqCst);
+                return;
+            }
+            Ok(_) => {}
+            Err(e) if e.is_lost_lease() => {
+                signals.lease_lost.store(true, Ordering::SeqCst);
+                signals.cancel.store(true, Ordering::SeqCst);
+                return;
+            }
+            // Unreachable: keep simulating; the result will be re-sent until accepted, and a
+            // late result of an expired lease is still taken if nobody else finished first.
+            Err(e) => tracing::warn!(job = %job_id, error = %e, "heartbeat not delivered"),
+        }
+    }
+}
+
+/// Runs the experiment on a fresh pool of `threads` threads (results do not depend on it).
+fn simulate(
+    kind: &str,
+    spec: &serde_json::Value,
+    seed: u64,
+    threads: usize,
+    signals: &JobSignals,
+) -> Result<Outcome, ExperimentError> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| ExperimentError::InvalidSpec {
+            path: None,
+            message: format!("cannot start {threads} simulation threads: {e}"),
+        })?;
+    pool.install(|| {
+        run_experiment(kind, spec, seed, &mut |fraction| {
+            signals
+                .progress
+                .store(fraction.clamp(0.0, 1.0).to_bits(), Ordering::Relaxed);
+            if signals.cancel.load(Ordering::Relaxed) {
+                Control::Cancel
+            } else {
+                Control::Continue
+            }
+        })
+    })
+}
+
+fn save_pictures(dir: &std::path::Path, run_id: Uuid, outcome: &Outcome) {
+    if outcome.pictures.is_empty() {
+        return;
+    }
+    let run_dir = dir.join(run_id.to_string());
+    let written = std::fs::create_dir_all(&run_dir).and_then(|()| {
+        outcome
+            .pictures
+            .iter()
+            .try_for_each(|(name, svg)| std::fs::write(run_dir.join(name), svg))
+    });
+    if let Err(e) = written {
+        tracing::warn!(dir = %run_dir.display(), error = %e, "cannot save pictures");
+    }
+}
+
+/// Jittered exponential back-off: 0.25 s doubling up to the cap, ±25 %.
+#[derive(Debug)]
+struct Backoff {
+    next: Duration,
+    cap: Duration,
+}
+
+impl Backoff {
+    const FIRST: Duration = Duration::from_millis(250);
+
+    fn new(cap: Duration) -> Backoff {
+        Backoff {
+            next: Self::FIRST,
+            cap: cap.max(Self::FIRST),
+        }
+    }
+
+    fn reset(&mut self) {
+        self.next = Self::FIRST;
+    }
+
+    fn fail_hard(&mut self) {
+        self.next = self.cap;
+    }
+
+    fn next_delay(&mut self) -> Duration {
+        let base = self.next;
+        self.next = (self.next * 2).min(self.cap);
+        base.mul_f64(rand::thread_rng().gen_range(0.75..1.25))
+    }
+
+    /// Sleeps the next delay; `true` if the worker was told to stop meanwhile.
+    async fn wait(&mut self, stop: &watch::Receiver<bool>) -> bool {
+        let delay = self.next_delay();
+        let mut watcher = stop.clone();
+        tokio::select! {
+            () = tokio::time::sleep(delay) => *stop.borrow(),
+            _ = watcher.wait_for(|s| *s) => true,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_doubles_to_the_cap_with_jitter() {
+        let mut b = Backoff::new(Duration::from_secs(2));
+        let delays: Vec<f64> = (0..8).map(|_| b.next_delay().as_secs_f64()).collect();
+        assert!((0.18..0.32).contains(&delays[0]), "{delays:?}");
+        assert!(delays[7] <= 2.5 && delays[7] >= 1.5, "{delays:?}");
+        b.reset();
+        assert!(b.next_delay() < Duration::from_millis(320));
+    }
+
+    #[test]
+    fn simulate_runs_a_replay_and_honours_cancel() {
+        let spec = serde_json::json!({"values": {"a": 1.0}, "rows": [{"a": 1.0, "y": 2.0}]});
+        let signals = JobSignals::default();
+        let outcome = simulate("table_lookup", &spec, 0, 1, &signals).unwrap();
+        assert_eq!(outcome.metrics["y"], 2.0);
+        signals.cancel.store(true, Ordering::SeqCst);
+        assert!(matches!(
+            simulate("table_lookup", &spec, 0, 1, &signals),
+            Err(ExperimentError::Cancelled)
+        ));
+    }
+}
