@@ -138,6 +138,10 @@ pub enum ModelName {
     /// Full second-order model.
     #[serde(rename = "quadratic")]
     Quadratic,
+    /// No regression: the analysis summarises the response (mean, standard deviation, …), for
+    /// replicate runs at one point such as a verification batch.
+    #[serde(rename = "none")]
+    None,
 }
 
 /// Reply to a successful submission.
@@ -443,6 +447,10 @@ pub struct AnalysisView {
     pub optimum: Option<Value>,
     /// Steepest-ascent (or descent, towards the target) path; linear models only.
     pub steepest_path: Option<Value>,
+    /// Summary of the response over the completed runs: `n`, `mean`, `std`, `min`, `max`, and
+    /// with a target `relative_error_pct` of the mean.
+    #[serde(default)]
+    pub summary: Option<Value>,
     /// Why the fit or a later step could not be computed.
     pub error: Option<String>,
 }

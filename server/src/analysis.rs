@@ -30,6 +30,7 @@ pub fn analyse(input: &AnalysisInput) -> AnalysisView {
         fit: None,
         optimum: None,
         steepest_path: None,
+        summary: None,
         error: None,
     };
     let (rows, response): (Vec<&[f64]>, Vec<f64>) = input
@@ -41,7 +42,14 @@ pub fn analyse(input: &AnalysisInput) -> AnalysisView {
         })
         .unzip();
     view.runs_used = rows.len();
-    let fitted = Model::new(&names, model_kind(input.model)).and_then(|model| {
+    view.summary = summarise(&response, input.target);
+    let Some(kind) = model_kind(input.model) else {
+        if response.is_empty() {
+            view.error = Some("no completed run reported the response".into());
+        }
+        return view;
+    };
+    let fitted = Model::new(&names, kind).and_then(|model| {
         let options = FitOptions {
             response_name: input.response.clone(),
             ..FitOptions::default()
@@ -76,6 +84,30 @@ pub fn analyse(input: &AnalysisInput) -> AnalysisView {
         view.error = Some(problems.join("; "));
     }
     view
+}
+
+/// Mean, spread and (with a target) relative error of the observed responses.
+fn summarise(observed: &[f64], target: Option<f64>) -> Option<Value> {
+    if observed.is_empty() {
+        return None;
+    }
+    let n = observed.len() as f64;
+    let mean = observed.iter().sum::<f64>() / n;
+    let std = if observed.len() > 1 {
+        (observed.iter().map(|y| (y - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    let min = observed.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = observed.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let mut summary = serde_json::json!({
+        "n": observed.len(), "mean": mean, "std": std, "min": min, "max": max,
+    });
+    if let Some(target) = target.filter(|t| *t != 0.0) {
+        summary["target"] = target.into();
+        summary["relative_error_pct"] = (100.0 * (mean - target).abs() / target.abs()).into();
+    }
+    Some(summary)
 }
 
 /// Desirability search for `target`; the acceptable band spans the observed responses and the
@@ -158,6 +190,23 @@ pub fn render_text(view: &AnalysisView) -> String {
     );
     if let Some(error) = &view.error {
         let _ = writeln!(out, "note: {error}");
+    }
+    if let Some(summary) = &view.summary {
+        let number = |key: &str| summary.get(key).and_then(Value::as_f64);
+        let _ = write!(
+            out,
+            "\n{}: mean {:.4}, std {:.4}, min {:.4}, max {:.4} over {} runs",
+            view.response,
+            number("mean").unwrap_or(f64::NAN),
+            number("std").unwrap_or(f64::NAN),
+            number("min").unwrap_or(f64::NAN),
+            number("max").unwrap_or(f64::NAN),
+            view.runs_used
+        );
+        if let (Some(target), Some(error)) = (number("target"), number("relative_error_pct")) {
+            let _ = write!(out, "; target {target}, relative error of the mean {error:.2} %");
+        }
+        let _ = writeln!(out);
     }
     if let Some(fit) = &view.fit {
         let _ = writeln!(out, "\nCoefficients (coded units)");

@@ -52,12 +52,13 @@ pub struct PlannedBatch {
     pub runs: Vec<PlannedRun>,
 }
 
-/// The `repose-doe` model family for a wire model name.
-pub fn model_kind(model: ModelName) -> ModelKind {
+/// The `repose-doe` model family for a wire model name; `None` for no regression.
+pub fn model_kind(model: ModelName) -> Option<ModelKind> {
     match model {
-        ModelName::Linear => ModelKind::Linear,
-        ModelName::TwoFactorInteraction => ModelKind::TwoFactorInteraction,
-        ModelName::Quadratic => ModelKind::Quadratic,
+        ModelName::Linear => Some(ModelKind::Linear),
+        ModelName::TwoFactorInteraction => Some(ModelKind::TwoFactorInteraction),
+        ModelName::Quadratic => Some(ModelKind::Quadratic),
+        ModelName::None => None,
     }
 }
 
@@ -83,7 +84,9 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     let template = prepare_template(&request)?;
     let factors = validate_factors(&request, &template)?;
     let names: Vec<&str> = factors.iter().map(|f| f.name.as_str()).collect();
-    let model = Model::new(&names, model_kind(request.model))
+    let model = model_kind(request.model)
+        .map(|kind| Model::new(&names, kind))
+        .transpose()
         .map_err(|err| AppError::invalid("factors", err.to_string()))?;
 
     let design = build_design(&request.design, &factors, &names)?;
@@ -99,7 +102,9 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
             ),
         ));
     }
-    check_model_is_estimable(&model, &design, request.replicates as usize, request.model)?;
+    if let Some(model) = &model {
+        check_model_is_estimable(model, &design, request.replicates as usize, request.model)?;
+    }
 
     let base_seed = request.seed.unwrap_or(fallback_seed);
     let randomized = design.randomized(base_seed);
@@ -348,6 +353,7 @@ pub fn model_label(model: ModelName) -> &'static str {
         ModelName::Linear => "linear",
         ModelName::TwoFactorInteraction => "2fi",
         ModelName::Quadratic => "quadratic",
+        ModelName::None => "none",
     }
 }
 
