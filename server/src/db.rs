@@ -951,6 +951,7 @@ fn model_from_db(text: &str) -> Result<ModelName, AppError> {
         "linear" => Ok(ModelName::Linear),
         "2fi" => Ok(ModelName::TwoFactorInteraction),
         "quadratic" => Ok(ModelName::Quadratic),
+        "none" => Ok(ModelName::None),
         other => Err(AppError::Internal(format!("stored model {other:?}"))),
     }
 }
