@@ -137,8 +137,18 @@ pub fn run_experiment(
                 }
             })?;
             let details = serde_json::to_value(&run.result).expect("AorResult serialises");
+            // A heap still creeping when the time cap ends the run (constant-torque rolling
+            // friction never quite stops) is measured as it stands and flagged
+            // `came_to_rest = 0`; only a run with no measurable heap has no result.
+            let capped_angle = match run.result.status {
+                RunStatus::NotSettled if run.result.insertion_end_s.is_some() => {
+                    run.result.last_angle_deg
+                }
+                _ => None,
+            };
             match run.result.status {
                 RunStatus::Ok => {}
+                RunStatus::NotSettled if capped_angle.is_some() => {}
                 RunStatus::Cancelled => return Err(ExperimentError::Cancelled),
                 status => {
                     return Err(ExperimentError::NoResult {
@@ -153,7 +163,8 @@ pub fn run_experiment(
             let mut metrics = BTreeMap::new();
             let r = &run.result;
             let scalars = [
-                ("angle_deg", r.angle_deg),
+                ("angle_deg", r.angle_deg.or(capped_angle)),
+                ("came_to_rest", Some(if r.came_to_rest { 1.0 } else { 0.0 })),
                 ("left_deg", r.left_deg),
                 ("right_deg", r.right_deg),
                 ("projection_mean_deg", r.projection_mean_deg),
