@@ -1,0 +1,76 @@
+//! Calibration campaigns: screening → steepest ascent/descent → response surface → optimum →
+//! verification (→ optional drilling validation), as pure decisions over finished batches, and
+//! the campaign report. No I/O, no HTTP, no SQL: the server persists a [`Campaign`] as JSON,
+//! submits the batches it returns and calls [`Campaign::advance`] when each one finishes.
+//!
+//! # How a server drives a campaign
+//!
+//! 1. `POST /v1/campaigns` → parse a [`CampaignRequest`] and call [`Campaign::start`]; it
+//!    validates the request (errors name the field) and returns the state plus the screening
+//!    [`repose_api::BatchRequest`]. Submit it, remember that server batch id ↔ campaign batch
+//!    index `0` ([`Campaign::outstanding`]), store the campaign JSON.
+//! 2. When a batch of the campaign finishes, build a [`StageResult`] (`batch` = the campaign's
+//!    index, `runs` = the batch's runs, optionally its analysis) and call
+//!    [`Campaign::advance`]. It returns [`Next::Submit`] (submit and store again),
+//!    [`Next::Finished`] or [`Next::NeedsAttention`]. The state is updated in place; store it
+//!    after every call. After a restart, load the JSON and carry on — the state holds
+//!    everything the next decision needs.
+//! 3. Keep every batch's runs: [`report_json`] and [`report_html`] take all of them
+//!    (`&[StageResult]`, any order) and recompute the fits for the tables and figures.
+//!
+//! # Stages and the rules they follow
+//!
+//! 1. **Screening** (`<name>: screening`): all candidates over their `[low, high]`,
+//!    Plackett–Burman by default (or a factorial, or explicit points in natural units), linear
+//!    model. Significant = ANOVA p < α. More than `screening.max_factors` (3) significant → the
+//!    largest |t| are kept; none significant → the `screening.fallback_factors` (2) largest |t|
+//!    are carried and the decision says the screening could not separate them from noise. The
+//!    others are held at `fixed_at` or mid-range, written into every later batch's spec.
+//! 2. **Steepest path** (`<name>: steepest path`): Montgomery's path over the carried factors
+//!    from the screening coefficients (the paper's Eqs. 13-15): the base factor (largest
+//!    |coefficient|) moves one half-range per step, the others `b_i/|b_base|` of their
+//!    half-range, rounded to `steepest.round_decimals`. Start at a corner (default, the paper) or
+//!    the centre; with `direction: auto` from a corner, the corner whose prediction lies on the
+//!    near side of the target is chosen (ascent from the low corner when both work and it is
+//!    nearer). Points are clamped to the allowed ranges and the path ends where every factor
+//!    sits at its bound or at `max_points`. `points_per_dispatch` points are sent per batch;
+//!    the stage stops when two consecutive responses bracket the target (or one is within
+//!    tolerance), else the next points are sent. The point closest to the target is the centre.
+//!    Never crossing → the closest point is used anyway and the decision says so.
+//! 3. **Response surface** (`<name>: response surface`): Box–Behnken (5 centre points) by
+//!    default or a CCD, centred on that point with half-ranges = the path steps (at least 5 % of
+//!    the allowed half-range), clamped to the allowed ranges; 2 factors → face-centred CCD,
+//!    1 factor → a five-level line. Full quadratic model and ANOVA.
+//! 4. **Optimum**: Derringer–Suich desirability for the target (as `repose analyze
+//!    --target`), the whole level set reported (starts at desirability 1, distinct settings,
+//!    spread, per-factor extent); the chosen setting is the tied one nearest the design centre.
+//! 5. **Verification** (`<name>: verification`): an explicit one-point batch at the optimum,
+//!    `verification.replicates` (3) replicates, model `none`, fresh seeds. Accepted if the mean
+//!    is within `tolerance` (`{"relative_pct": 5}` by default, or `{"absolute": x}`). If not,
+//!    a further response-surface round centred at the optimum with half the half-ranges, at most
+//!    `response_surface.max_extra_rounds` (2) times; then [`Next::NeedsAttention`].
+//! 6. **Drilling validation** (optional, `<name>: drilling validation`): one explicit batch of
+//!    the drilling experiment at the calibrated parameters (paths remapped by
+//!    `drilling.paths`), each measured metric compared with the simulated mean. A failure is
+//!    reported in the decisions and the summary; the calibration itself is still finished.
+//!
+//! With `seed` set, batch `i` gets the seed `splitmix64(seed ^ i·φ)`, so every batch —
+//! verification included — has fresh simulation seeds; without it the server chooses.
+mod campaign;
+mod error;
+mod report;
+mod request;
+mod svg;
+
+pub use campaign::{
+    CalibratedValue, Campaign, CarryRule, Decision, DrillMetric, DrillingOutcome, HeldFactor,
+    IssuedBatch, LevelSetPoint, Next, OptimumChoice, PathPoint, PathState, ScreeningOutcome,
+    StageKind, StageResult, Status, Summary, SurfaceFitSummary, SurfaceRound, VerificationOutcome,
+};
+pub use error::CampaignError;
+pub use report::{report_html, report_json, ReportPictures};
+pub use request::{
+    relative_error_pct, CampaignRequest, CandidateFactor, DrillingValidation, PathDirectionSetting,
+    PathStartSetting, ScreeningSettings, StageExperiments, SteepestSettings, SurfaceDesign,
+    SurfaceSettings, Tolerance, VerificationSettings,
+};

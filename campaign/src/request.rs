@@ -1,0 +1,519 @@
+//! What a person submits: [`CampaignRequest`] and its stage settings, with defaults.
+
+use std::collections::BTreeMap;
+
+use repose_api::{CcdVariantName, DesignRequest, ExperimentTemplate};
+use serde::{Deserialize, Serialize};
+
+use crate::error::CampaignError;
+
+/// One calibration campaign: the experiment, the candidate parameters, the measured target and
+/// how each stage is run. Every stage setting has a default; the smallest request names the
+/// experiment, the factors and the target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CampaignRequest {
+    /// Label; every batch of the campaign is named `<name>: <stage>`.
+    pub name: String,
+    /// The simulation every run starts from (e.g. kind `aor`, preset `fast`).
+    pub experiment: ExperimentTemplate,
+    /// Optional per-stage replacements of `experiment` (e.g. a cheaper preset for screening, a
+    /// finer one for verification). The replay test uses them to give each of the paper's
+    /// tables its own lookup experiment.
+    #[serde(default)]
+    pub stage_experiments: StageExperiments,
+    /// Candidate parameters (the paper's Table 1/2), screened in the first stage.
+    pub factors: Vec<CandidateFactor>,
+    /// Metric the campaign calibrates (default `angle_deg`).
+    #[serde(default = "default_response")]
+    pub response: String,
+    /// Measured value of the response (e.g. 34.85°).
+    pub target: f64,
+    /// How close a verified mean must come to the target (default 5 % relative).
+    #[serde(default)]
+    pub tolerance: Tolerance,
+    /// Significance level of the screening and of the response-surface ANOVA (default 0.05).
+    #[serde(default = "default_alpha")]
+    pub alpha: f64,
+    /// Base seed; batch `i` of the campaign gets a seed derived from it so every batch (and
+    /// thus every verification replicate) has fresh simulation seeds. `None` leaves the seeds
+    /// to the server.
+    #[serde(default)]
+    pub seed: Option<u64>,
+    /// Stage 1.
+    #[serde(default)]
+    pub screening: ScreeningSettings,
+    /// Stage 2.
+    #[serde(default)]
+    pub steepest: SteepestSettings,
+    /// Stages 3 and 4.
+    #[serde(default)]
+    pub response_surface: SurfaceSettings,
+    /// Stage 5.
+    #[serde(default)]
+    pub verification: VerificationSettings,
+    /// Optional stage 6: a drilling simulation at the calibrated parameters against measured
+    /// hole metrics.
+    #[serde(default)]
+    pub drilling: Option<DrillingValidation>,
+}
+
+fn default_response() -> String {
+    "angle_deg".to_owned()
+}
+
+fn default_alpha() -> f64 {
+    0.05
+}
+
+/// Per-stage experiment templates; a stage without one uses the campaign's `experiment`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageExperiments {
+    /// Screening batch.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub screening: Option<ExperimentTemplate>,
+    /// Steepest-ascent batches.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steepest: Option<ExperimentTemplate>,
+    /// Response-surface batches (every round).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub response_surface: Option<ExperimentTemplate>,
+    /// Verification batches.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verification: Option<ExperimentTemplate>,
+}
+
+/// A parameter that may matter.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CandidateFactor {
+    /// Name used in designs, models and the report (e.g. `N2`).
+    pub name: String,
+    /// Dotted path into the experiment spec (e.g. `soil_soil.static_friction`).
+    pub path: String,
+    /// Lowest allowed value; also the screening design's low level.
+    pub low: f64,
+    /// Highest allowed value; also the screening design's high level.
+    pub high: f64,
+    /// Value the factor is held at when screening does not carry it forward (default: the
+    /// middle of `[low, high]`). The paper holds N6 at 0.50.
+    #[serde(default)]
+    pub fixed_at: Option<f64>,
+}
+
+impl CandidateFactor {
+    /// The value used when the factor is not varied.
+    pub fn hold_value(&self) -> f64 {
+        self.fixed_at.unwrap_or(0.5 * (self.low + self.high))
+    }
+}
+
+/// Acceptance band of a verified mean around the target.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Tolerance {
+    /// `|mean - target| / |target| · 100 <= pct`, e.g. `{"relative_pct": 5}`.
+    RelativePct(f64),
+    /// `|mean - target| <= value` in response units, e.g. `{"absolute": 1.0}`.
+    Absolute(f64),
+}
+
+impl Default for Tolerance {
+    fn default() -> Self {
+        Tolerance::RelativePct(5.0)
+    }
+}
+
+impl Tolerance {
+    /// Whether `value` is accepted for `target`.
+    pub fn accepts(&self, value: f64, target: f64) -> bool {
+        match *self {
+            Tolerance::RelativePct(pct) => relative_error_pct(value, target) <= pct,
+            Tolerance::Absolute(abs) => (value - target).abs() <= abs,
+        }
+    }
+
+    /// Plain-language form, e.g. `5 % of the target`.
+    pub fn describe(&self) -> String {
+        match *self {
+            Tolerance::RelativePct(pct) => format!("{pct} % of the target"),
+            Tolerance::Absolute(abs) => format!("±{abs} (absolute)"),
+        }
+    }
+}
+
+/// `|value - target| / |target| · 100`.
+pub fn relative_error_pct(value: f64, target: f64) -> f64 {
+    (value - target).abs() / target.abs() * 100.0
+}
+
+/// Stage 1 settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScreeningSettings {
+    /// Screening design over all candidates: Plackett–Burman (default, smallest size), a
+    /// factorial, or explicit points in natural units (e.g. the paper's Table 3 rows).
+    pub design: DesignRequest,
+    /// Copies of every design point.
+    pub replicates: u32,
+    /// At most this many factors are carried forward; when more are significant, the largest
+    /// |t| are kept (default 3, what a Box–Behnken design handles economically).
+    pub max_factors: usize,
+    /// When no factor is significant, this many factors with the largest |t| are carried
+    /// anyway (default 2), and the report says the screening could not separate them from noise.
+    pub fallback_factors: usize,
+}
+
+impl Default for ScreeningSettings {
+    fn default() -> Self {
+        Self {
+            design: DesignRequest::PlackettBurman { runs: None },
+            replicates: 1,
+            max_factors: 3,
+            fallback_factors: 2,
+        }
+    }
+}
+
+/// Where the steepest path starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PathStartSetting {
+    /// The corner of the screening region the path leaves from (each factor at the end it
+    /// moves away from), as the paper does: the path crosses the whole region.
+    Corner,
+    /// The centre of the screening region.
+    Centre,
+}
+
+/// Which way the path goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PathDirectionSetting {
+    /// Toward the target: from the centre, the side the target is on; from a corner, the
+    /// corner whose prediction is nearer the target, walking toward it.
+    Auto,
+    /// Always ascent.
+    Ascent,
+    /// Always descent.
+    Descent,
+}
+
+/// Stage 2 settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SteepestSettings {
+    /// Path points simulated per batch (default 5).
+    pub points_per_dispatch: usize,
+    /// Path points at most, start included (default 10).
+    pub max_points: usize,
+    /// Non-base steps are rounded to this many decimals (default 2, as the paper).
+    pub round_decimals: Option<u32>,
+    /// Start point (default corner, as the paper).
+    pub start: PathStartSetting,
+    /// Direction (default auto).
+    pub direction: PathDirectionSetting,
+    /// Copies of every path point.
+    pub replicates: u32,
+}
+
+impl Default for SteepestSettings {
+    fn default() -> Self {
+        Self {
+            points_per_dispatch: 5,
+            max_points: 10,
+            round_decimals: Some(2),
+            start: PathStartSetting::Corner,
+            direction: PathDirectionSetting::Auto,
+            replicates: 1,
+        }
+    }
+}
+
+/// Response-surface design family.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum SurfaceDesign {
+    /// Box–Behnken (3 to 7 factors; with 2 factors a face-centred CCD is used, with 1 a
+    /// five-level line, and the report says so).
+    BoxBehnken {
+        /// Centre runs (default 5).
+        #[serde(default = "default_centre_points")]
+        centre_points: usize,
+    },
+    /// Central composite. Circumscribed star points that would leave the allowed ranges turn
+    /// the design inscribed (said in the decisions).
+    CentralComposite {
+        /// Star point placement.
+        variant: CcdVariantName,
+        /// Centre runs (default 5).
+        #[serde(default = "default_centre_points")]
+        centre_points: usize,
+    },
+}
+
+fn default_centre_points() -> usize {
+    5
+}
+
+impl SurfaceDesign {
+    /// Centre runs of the design.
+    pub fn centre_points(&self) -> usize {
+        match self {
+            SurfaceDesign::BoxBehnken { centre_points }
+            | SurfaceDesign::CentralComposite { centre_points, .. } => *centre_points,
+        }
+    }
+}
+
+/// Stages 3 and 4 settings. The model is always the full quadratic.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SurfaceSettings {
+    /// Design (default Box–Behnken with 5 centre points).
+    pub design: SurfaceDesign,
+    /// Copies of every design point.
+    pub replicates: u32,
+    /// Further response-surface rounds allowed after a failed verification (default 2); each is
+    /// centred at the last optimum with half the previous half-ranges.
+    pub max_extra_rounds: u32,
+    /// Starting points of the desirability search (default 64).
+    pub optimum_starts: usize,
+}
+
+impl Default for SurfaceSettings {
+    fn default() -> Self {
+        Self {
+            design: SurfaceDesign::BoxBehnken {
+                centre_points: default_centre_points(),
+            },
+            replicates: 1,
+            max_extra_rounds: 2,
+            optimum_starts: 64,
+        }
+    }
+}
+
+/// Stage 5 settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VerificationSettings {
+    /// Replicate simulations at the optimum, each with its own seed (default 3).
+    pub replicates: u32,
+}
+
+impl Default for VerificationSettings {
+    fn default() -> Self {
+        Self { replicates: 3 }
+    }
+}
+
+/// Optional stage 6: simulate the drilling experiment at the calibrated parameters and compare
+/// its metrics with measurements. The campaign issues the batch and compares the means; running
+/// the drill kind is the workers' business like any other batch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DrillingValidation {
+    /// The drilling experiment.
+    pub experiment: ExperimentTemplate,
+    /// Path of each calibrated factor in the drilling spec, by factor name; factors not listed
+    /// use their `path` from the campaign.
+    #[serde(default)]
+    pub paths: BTreeMap<String, String>,
+    /// Measured metrics (e.g. `{"hole_diameter_mm": 52.0}`); the first (alphabetically) is the
+    /// batch's response, all are compared.
+    pub measured: BTreeMap<String, f64>,
+    /// Accepted relative error of each simulated mean, percent (default 10).
+    #[serde(default = "default_drill_tolerance")]
+    pub tolerance_pct: f64,
+    /// Replicate simulations (default 1).
+    #[serde(default = "default_one")]
+    pub replicates: u32,
+}
+
+fn default_drill_tolerance() -> f64 {
+    10.0
+}
+
+fn default_one() -> u32 {
+    1
+}
+
+impl CampaignRequest {
+    /// Checks what the statistics cannot check later, naming the offending field.
+    pub fn validate(&self) -> Result<(), CampaignError> {
+        let bad = |field: &str, reason: String| CampaignError::InvalidRequest {
+            field: field.to_owned(),
+            reason,
+        };
+        if self.name.trim().is_empty() {
+            return Err(bad("name", "must not be empty".into()));
+        }
+        if self.factors.is_empty() {
+            return Err(bad(
+                "factors",
+                "at least one candidate factor is needed".into(),
+            ));
+        }
+        for (i, f) in self.factors.iter().enumerate() {
+            if f.name.trim().is_empty() {
+                return Err(bad(
+                    &format!("factors[{i}].name"),
+                    "must not be empty".into(),
+                ));
+            }
+            if self.factors[..i].iter().any(|g| g.name == f.name) {
+                return Err(bad(
+                    &format!("factors[{i}].name"),
+                    format!("`{}` is listed twice", f.name),
+                ));
+            }
+            if !(f.low.is_finite() && f.high.is_finite() && f.low < f.high) {
+                return Err(bad(
+                    &format!("factors[{i}].low"),
+                    format!(
+                        "need finite low < high for `{}`, got {} and {}",
+                        f.name, f.low, f.high
+                    ),
+                ));
+            }
+            if let Some(v) = f.fixed_at {
+                if !v.is_finite() {
+                    return Err(bad(
+                        &format!("factors[{i}].fixed_at"),
+                        "must be a finite number".into(),
+                    ));
+                }
+            }
+        }
+        if !self.target.is_finite() || self.target == 0.0 {
+            return Err(bad(
+                "target",
+                format!(
+                    "must be a finite non-zero number (relative errors divide by it), got {}",
+                    self.target
+                ),
+            ));
+        }
+        match self.tolerance {
+            Tolerance::RelativePct(v) | Tolerance::Absolute(v) if !(v.is_finite() && v > 0.0) => {
+                return Err(bad("tolerance", format!("must be positive, got {v}")));
+            }
+            _ => {}
+        }
+        if !(self.alpha > 0.0 && self.alpha < 1.0) {
+            return Err(bad(
+                "alpha",
+                format!("must be in (0, 1), got {}", self.alpha),
+            ));
+        }
+        if self.response.trim().is_empty() {
+            return Err(bad("response", "must not be empty".into()));
+        }
+        let s = &self.screening;
+        if s.replicates == 0 {
+            return Err(bad("screening.replicates", "must be at least 1".into()));
+        }
+        if s.max_factors == 0 {
+            return Err(bad("screening.max_factors", "must be at least 1".into()));
+        }
+        if s.fallback_factors == 0 {
+            return Err(bad(
+                "screening.fallback_factors",
+                "must be at least 1".into(),
+            ));
+        }
+        if matches!(
+            s.design,
+            DesignRequest::BoxBehnken { .. } | DesignRequest::CentralComposite { .. }
+        ) {
+            return Err(bad(
+                "screening.design",
+                "a screening design is two-level: plackett_burman, factorial or explicit".into(),
+            ));
+        }
+        if let DesignRequest::Explicit { points } = &s.design {
+            for (r, p) in points.iter().enumerate() {
+                if p.len() != self.factors.len() {
+                    return Err(bad(
+                        &format!("screening.design.points[{r}]"),
+                        format!(
+                            "has {} values, need one per factor ({})",
+                            p.len(),
+                            self.factors.len()
+                        ),
+                    ));
+                }
+            }
+        }
+        let p = &self.steepest;
+        if p.points_per_dispatch == 0 {
+            return Err(bad(
+                "steepest.points_per_dispatch",
+                "must be at least 1".into(),
+            ));
+        }
+        if p.max_points < 2 {
+            return Err(bad("steepest.max_points", "must be at least 2".into()));
+        }
+        if p.replicates == 0 {
+            return Err(bad("steepest.replicates", "must be at least 1".into()));
+        }
+        if let Some(d) = p.round_decimals {
+            if d > 12 {
+                return Err(bad(
+                    "steepest.round_decimals",
+                    format!("at most 12, got {d}"),
+                ));
+            }
+        }
+        if self.response_surface.replicates == 0 {
+            return Err(bad(
+                "response_surface.replicates",
+                "must be at least 1".into(),
+            ));
+        }
+        if self.response_surface.optimum_starts == 0 {
+            return Err(bad(
+                "response_surface.optimum_starts",
+                "must be at least 1".into(),
+            ));
+        }
+        if self.verification.replicates == 0 {
+            return Err(bad("verification.replicates", "must be at least 1".into()));
+        }
+        if let Some(d) = &self.drilling {
+            if d.measured.is_empty() {
+                return Err(bad("drilling.measured", "needs at least one metric".into()));
+            }
+            if let Some((k, v)) = d
+                .measured
+                .iter()
+                .find(|(_, v)| !v.is_finite() || **v == 0.0)
+            {
+                return Err(bad(
+                    &format!("drilling.measured.{k}"),
+                    format!("must be finite and non-zero, got {v}"),
+                ));
+            }
+            if !(d.tolerance_pct.is_finite() && d.tolerance_pct > 0.0) {
+                return Err(bad("drilling.tolerance_pct", "must be positive".into()));
+            }
+            if d.replicates == 0 {
+                return Err(bad("drilling.replicates", "must be at least 1".into()));
+            }
+            if let Some(name) = d
+                .paths
+                .keys()
+                .find(|n| !self.factors.iter().any(|f| &f.name == *n))
+            {
+                return Err(bad(
+                    &format!("drilling.paths.{name}"),
+                    "is not a candidate factor".into(),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
