@@ -242,6 +242,10 @@ pub struct BatchSummary {
     pub counts: StateCounts,
     /// Finished runs as a percentage of all runs.
     pub percent_done: f64,
+    /// Name of the user token that submitted the batch (only it may cancel the batch);
+    /// `None` for batches submitted before the server had access control.
+    #[serde(default)]
+    pub owner: Option<String>,
 }
 
 /// Detailed progress of one batch.
@@ -301,6 +305,54 @@ pub struct RunView {
     pub worker_id: Option<Uuid>,
     /// Last failure message.
     pub last_error: Option<String>,
+}
+
+/// One worker as listed by `GET /v1/workers`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorkerView {
+    /// Instance id chosen by the worker.
+    pub id: Uuid,
+    /// Host name it reported.
+    pub host: String,
+    /// Threads per simulation.
+    pub threads: u32,
+    /// Worker software version.
+    pub version: String,
+    /// First registration, Unix milliseconds.
+    pub registered_at_ms: i64,
+    /// Last registration, claim or heartbeat, Unix milliseconds.
+    pub last_seen_at_ms: i64,
+    /// Jobs it holds a lease on now.
+    pub running_jobs: u64,
+}
+
+/// One job (the queue entry of a run) as listed by `GET /v1/jobs`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JobView {
+    /// Job id (used in the worker protocol paths).
+    pub id: Uuid,
+    /// The run it computes.
+    pub run_id: Uuid,
+    /// The run's batch.
+    pub batch_id: Uuid,
+    /// Position of the run in its batch's run order.
+    pub run_index: u32,
+    /// Life cycle state (`running` = leased).
+    pub status: RunState,
+    /// Leases used so far.
+    pub attempts: u32,
+    /// Worker holding the current lease.
+    pub worker_id: Option<Uuid>,
+    /// Last reported progress of the current lease, 0..1.
+    pub progress: Option<f64>,
+    /// When the current lease expires, Unix milliseconds.
+    pub lease_expires_at_ms: Option<i64>,
+    /// Earliest time a queued job may be claimed (retry back-off), Unix milliseconds.
+    pub available_at_ms: i64,
+    /// Last failure message.
+    pub last_error: Option<String>,
+    /// Last change, Unix milliseconds.
+    pub updated_at_ms: i64,
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ mod levels;
 mod server_cmd;
 mod sim;
 mod table;
+mod token_cmd;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -38,6 +39,8 @@ enum Command {
     Aor(aor_cmd::AorArgs),
     /// Run the job server (REST API, SQLite) until Ctrl-C or SIGTERM.
     Server(server_cmd::ServerArgs),
+    /// Create, list and revoke the job server's access tokens (user and worker).
+    Token(token_cmd::TokenArgs),
 }
 
 fn main() -> ExitCode {
@@ -48,6 +51,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => sim::run(&args),
         Command::Bench(args) => bench_cmd::run(&args),
         Command::Server(args) => server_cmd::run(&args),
+        Command::Token(args) => token_cmd::run(&args),
         Command::Aor(args) => aor_cmd::run(&args),
     };
     match result {

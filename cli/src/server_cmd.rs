@@ -21,6 +21,11 @@ pub struct ServerArgs {
     /// Attempts before a failing job is marked dead.
     #[arg(long, env = "REPOSE_MAX_ATTEMPTS", default_value_t = 3)]
     pub max_attempts: u32,
+    /// Let requests without a token use the read-only GET endpoints (batches, runs, analyses,
+    /// workers, jobs, metrics). Submitting, cancelling and the worker protocol always need a
+    /// token (`repose token create`).
+    #[arg(long, env = "REPOSE_OPEN_READ")]
+    pub open_read: bool,
 }
 
 /// The validated server configuration (checked once, before anything starts).
@@ -35,6 +40,7 @@ fn config(args: &ServerArgs) -> Result<Config> {
     config.listen = args.listen;
     config.lease = Duration::from_secs_f64(args.lease_s);
     config.max_attempts = args.max_attempts;
+    config.open_read = args.open_read;
     Ok(config)
 }
 
@@ -60,7 +66,8 @@ pub fn run(args: &ServerArgs) -> Result<()> {
     })
 }
 
-async fn shutdown_signal() {
+/// Resolves on Ctrl-C or SIGTERM.
+pub(crate) async fn shutdown_signal() {
     let ctrl_c = async {
         let _ = tokio::signal::ctrl_c().await;
     };

@@ -12,7 +12,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use repose_api::{
     AnalysisView, BatchState, BatchStatus, BatchSummary, ClaimResponse, Completion, FactorValue,
-    ModelName, RunState, RunView, StateCounts, WorkerRegistration,
+    JobView, ModelName, RunState, RunView, StateCounts, WorkerRegistration, WorkerView,
 };
 use repose_doe::design::{DesignKind, Factor};
 use serde_json::Value;
@@ -23,8 +23,10 @@ use sqlx::sqlite::{
 use sqlx::{Row, Sqlite, Transaction};
 use uuid::Uuid;
 
+use crate::auth::TokenRole;
 use crate::error::AppError;
 use crate::submit::PlannedBatch;
+use crate::tokens::TokenInfo;
 
 /// How long a connection waits for SQLite's lock (another process, a checkpoint) before failing.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
@@ -148,15 +150,15 @@ impl Db {
     // -----------------------------------------------------------------------------------------
 
     /// Stores a validated batch with one run and one queued job per planned run.
-    pub async fn insert_batch(&self, plan: &PlannedBatch) -> Result<Uuid, AppError> {
+    pub async fn insert_batch(&self, plan: &PlannedBatch, owner: &str) -> Result<Uuid, AppError> {
         let batch_id = Uuid::new_v4();
         let now = now_ms();
         let request = &plan.request;
         let mut tx = self.writer.begin().await?;
         sqlx::query(
             "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
-                                  target, base_seed, state, created_at)
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?)",
+                                  target, base_seed, state, created_at, owner)
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?)",
         )
         .bind(batch_id.to_string())
         .bind(&request.name)
@@ -169,6 +171,7 @@ impl Db {
         .bind(request.target)
         .bind(plan.base_seed as i64)
         .bind(now)
+        .bind(owner)
         .execute(&mut *tx)
         .await?;
         for run in &plan.runs {
@@ -313,20 +316,31 @@ impl Db {
         Ok(Some((names, runs)))
     }
 
-    /// Cancels an active batch: its unfinished jobs will not run. Returns the state afterwards,
-    /// or `None` if the batch does not exist. Completed batches are left alone.
-    pub async fn cancel_batch(&self, batch_id: Uuid) -> Result<Option<BatchState>, AppError> {
+    /// Cancels an active batch on behalf of the user token `caller`: its unfinished jobs will
+    /// not run. Returns the state afterwards, or `None` if the batch does not exist. Completed
+    /// batches are left alone; a batch owned by another token is [`AppError::Forbidden`].
+    pub async fn cancel_batch(
+        &self,
+        batch_id: Uuid,
+        caller: &str,
+    ) -> Result<Option<BatchState>, AppError> {
         let now = now_ms();
         let id = batch_id.to_string();
         let mut tx = self.writer.begin().await?;
-        let Some(state) = sqlx::query_scalar::<_, String>("SELECT state FROM batches WHERE id = ?")
+        let Some(row) = sqlx::query("SELECT state, owner FROM batches WHERE id = ?")
             .bind(&id)
             .fetch_optional(&mut *tx)
             .await?
         else {
             return Ok(None);
         };
-        let state = batch_state_from_db(&state)?;
+        let owner: Option<String> = row.try_get("owner")?;
+        if let Some(owner) = owner.filter(|owner| owner != caller) {
+            return Err(AppError::Forbidden(format!(
+                "batch {batch_id} belongs to `{owner}`; only its owner may cancel it"
+            )));
+        }
+        let state = batch_state_from_db(row.try_get("state")?)?;
         if state != BatchState::Active {
             return Ok(Some(state));
         }
@@ -677,6 +691,131 @@ impl Db {
         })
     }
 
+    /// Registered workers, most recently seen first, with the number of leases each holds.
+    pub async fn list_workers(&self, limit: u32) -> Result<Vec<WorkerView>, AppError> {
+        let rows = sqlx::query(
+            "SELECT w.id, w.host, w.threads, w.version, w.registered_at, w.last_seen_at,
+                    (SELECT COUNT(*) FROM jobs j
+                     WHERE j.worker_id = w.id AND j.state = 'leased') AS running_jobs
+             FROM workers w ORDER BY w.last_seen_at DESC, w.rowid DESC LIMIT ?",
+        )
+        .bind(i64::from(limit))
+        .fetch_all(&self.reader)
+        .await?;
+        rows.iter()
+            .map(|row| {
+                Ok(WorkerView {
+                    id: parse_uuid(row.try_get("id")?)?,
+                    host: row.try_get("host")?,
+                    threads: row.try_get::<i64, _>("threads")? as u32,
+                    version: row.try_get("version")?,
+                    registered_at_ms: row.try_get("registered_at")?,
+                    last_seen_at_ms: row.try_get("last_seen_at")?,
+                    running_jobs: row.try_get::<i64, _>("running_jobs")? as u64,
+                })
+            })
+            .collect()
+    }
+
+    /// Jobs, most recently changed first, optionally only those in `status` or of `batch_id`.
+    pub async fn list_jobs(
+        &self,
+        status: Option<RunState>,
+        batch_id: Option<Uuid>,
+        limit: u32,
+    ) -> Result<Vec<JobView>, AppError> {
+        let rows = sqlx::query(
+            "SELECT j.id, j.run_id, j.batch_id, r.run_index, j.state, j.attempts, j.worker_id,
+                    j.progress, j.lease_expires_at, j.available_at, j.last_error, j.updated_at
+             FROM jobs j JOIN runs r ON r.id = j.run_id
+             WHERE (?1 IS NULL OR j.state = ?1) AND (?2 IS NULL OR j.batch_id = ?2)
+             ORDER BY j.updated_at DESC, j.rowid DESC LIMIT ?3",
+        )
+        .bind(status.map(job_state_to_db))
+        .bind(batch_id.map(|id| id.to_string()))
+        .bind(i64::from(limit))
+        .fetch_all(&self.reader)
+        .await?;
+        rows.iter()
+            .map(|row| {
+                let worker_id: Option<String> = row.try_get("worker_id")?;
+                Ok(JobView {
+                    id: parse_uuid(row.try_get("id")?)?,
+                    run_id: parse_uuid(row.try_get("run_id")?)?,
+                    batch_id: parse_uuid(row.try_get("batch_id")?)?,
+                    run_index: row.try_get::<i64, _>("run_index")? as u32,
+                    status: run_state_from_job(row.try_get("state")?)?,
+                    attempts: row.try_get::<i64, _>("attempts")? as u32,
+                    worker_id: worker_id.as_deref().map(parse_uuid).transpose()?,
+                    progress: row.try_get("progress")?,
+                    lease_expires_at_ms: row.try_get("lease_expires_at")?,
+                    available_at_ms: row.try_get("available_at")?,
+                    last_error: row.try_get("last_error")?,
+                    updated_at_ms: row.try_get("updated_at")?,
+                })
+            })
+            .collect()
+    }
+
+    // -----------------------------------------------------------------------------------------
+    // Tokens
+    // -----------------------------------------------------------------------------------------
+
+    /// Stores a new token; `false` (and nothing stored) when the name is taken.
+    pub async fn insert_token(
+        &self,
+        name: &str,
+        role: TokenRole,
+        hash: &str,
+    ) -> Result<bool, sqlx::Error> {
+        let inserted = sqlx::query(
+            "INSERT INTO tokens (id, name, role, hash, created_at) VALUES (?, ?, ?, ?, ?)
+             ON CONFLICT (name) DO NOTHING",
+        )
+        .bind(Uuid::new_v4().to_string())
+        .bind(name)
+        .bind(role.as_str())
+        .bind(hash)
+        .bind(now_ms())
+        .execute(&self.writer)
+        .await?
+        .rows_affected();
+        Ok(inserted == 1)
+    }
+
+    /// Every token, oldest first (revoked ones included).
+    pub async fn list_tokens(&self) -> Result<Vec<TokenInfo>, sqlx::Error> {
+        let rows = sqlx::query(
+            "SELECT name, role, created_at, revoked_at FROM tokens ORDER BY created_at, rowid",
+        )
+        .fetch_all(&self.reader)
+        .await?;
+        rows.iter().map(token_from_row).collect()
+    }
+
+    /// The token with SHA-256 `hash`, revoked or not.
+    pub async fn find_token(&self, hash: &str) -> Result<Option<TokenInfo>, sqlx::Error> {
+        let row =
+            sqlx::query("SELECT name, role, created_at, revoked_at FROM tokens WHERE hash = ?")
+                .bind(hash)
+                .fetch_optional(&self.reader)
+                .await?;
+        row.as_ref().map(token_from_row).transpose()
+    }
+
+    /// Revokes the token `name` (a no-op if it already is); `None` if there is no such token.
+    pub async fn revoke_token(&self, name: &str) -> Result<Option<TokenInfo>, sqlx::Error> {
+        let row = sqlx::query(
+            "UPDATE tokens SET revoked_at = COALESCE(revoked_at, ?) WHERE name = ?
+             RETURNING name, role, created_at, revoked_at",
+        )
+        .bind(now_ms())
+        .bind(name)
+        .fetch_optional(&self.writer)
+        .await?;
+        row.as_ref().map(token_from_row).transpose()
+    }
+
     // -----------------------------------------------------------------------------------------
     // Analyses
     // -----------------------------------------------------------------------------------------
@@ -885,7 +1024,7 @@ async fn finish_batch_if_done(
     Ok(done == 1)
 }
 
-const SUMMARY_SELECT: &str = "SELECT b.id, b.name, b.kind, b.state, b.created_at,
+const SUMMARY_SELECT: &str = "SELECT b.id, b.name, b.kind, b.state, b.created_at, b.owner,
         COALESCE(SUM(j.state = 'queued'), 0) AS queued,
         COALESCE(SUM(j.state = 'leased'), 0) AS running,
         COALESCE(SUM(j.state = 'completed'), 0) AS completed,
@@ -915,6 +1054,19 @@ fn summary_from_row(row: &SqliteRow) -> Result<BatchSummary, AppError> {
         created_at_ms: row.try_get("created_at")?,
         counts,
         percent_done,
+        owner: row.try_get("owner")?,
+    })
+}
+
+fn token_from_row(row: &SqliteRow) -> Result<TokenInfo, sqlx::Error> {
+    let role: String = row.try_get("role")?;
+    Ok(TokenInfo {
+        name: row.try_get("name")?,
+        role: role
+            .parse()
+            .map_err(|err| sqlx::Error::Decode(Box::new(err)))?,
+        created_at_ms: row.try_get("created_at")?,
+        revoked_at_ms: row.try_get("revoked_at")?,
     })
 }
 
@@ -928,6 +1080,16 @@ fn batch_state_from_db(text: &str) -> Result<BatchState, AppError> {
         "completed" => Ok(BatchState::Completed),
         "cancelled" => Ok(BatchState::Cancelled),
         other => Err(AppError::Internal(format!("stored batch state {other:?}"))),
+    }
+}
+
+fn job_state_to_db(state: RunState) -> &'static str {
+    match state {
+        RunState::Queued => "queued",
+        RunState::Running => "leased",
+        RunState::Completed => "completed",
+        RunState::Dead => "dead",
+        RunState::Cancelled => "cancelled",
     }
 }
 

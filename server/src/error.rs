@@ -4,7 +4,7 @@
 //! and nowhere else, and internal failures are logged and answered with a generic message so
 //! SQL, file paths and the like never leak to clients.
 
-use axum::http::StatusCode;
+use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use repose_api::ApiError;
@@ -23,9 +23,18 @@ pub enum AppError {
         /// What is wrong with it.
         message: String,
     },
+    /// No valid token (missing, malformed, unknown or revoked): 401 with `WWW-Authenticate`.
+    #[error("{0}")]
+    Unauthorized(String),
+    /// A valid token without the right to do this (wrong role, another user's batch): 403.
+    #[error("{0}")]
+    Forbidden(String),
     /// The addressed batch, job or run does not exist: 404.
     #[error("{0}")]
     NotFound(String),
+    /// The path exists but not with this method: 405.
+    #[error("{0}")]
+    MethodNotAllowed(String),
     /// The request conflicts with the current state (stale lease, duplicate completion, …): 409.
     #[error("{0}")]
     Conflict(String),
@@ -69,8 +78,24 @@ impl IntoResponse for AppError {
             AppError::Invalid { field, message } => {
                 (StatusCode::UNPROCESSABLE_ENTITY, field, message)
             }
+            AppError::Unauthorized(message) => {
+                let body = Json(ApiError {
+                    error: message,
+                    field: None,
+                });
+                // RFC 6750: a 401 names the scheme the client should use.
+                let challenge = HeaderValue::from_static("Bearer realm=\"repose\"");
+                return (
+                    StatusCode::UNAUTHORIZED,
+                    [(header::WWW_AUTHENTICATE, challenge)],
+                    body,
+                )
+                    .into_response();
+            }
+            AppError::Forbidden(message) => (StatusCode::FORBIDDEN, None, message),
             AppError::NotFound(message) => (StatusCode::NOT_FOUND, None, message),
             AppError::Conflict(message) => (StatusCode::CONFLICT, None, message),
+            AppError::MethodNotAllowed(message) => (StatusCode::METHOD_NOT_ALLOWED, None, message),
             AppError::Body { status, message } => (status, None, message),
             internal @ (AppError::Database(_) | AppError::Internal(_)) => {
                 tracing::error!(error = %internal, "request failed");

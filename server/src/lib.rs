@@ -25,13 +25,17 @@ use tokio::net::TcpListener;
 use tokio::sync::{watch, Notify};
 
 mod analysis;
+pub mod auth;
 mod db;
 mod error;
 mod routes;
 mod submit;
+pub mod tokens;
 
+pub use auth::{Access, TokenRole};
 pub use error::AppError;
-pub use routes::app;
+pub use routes::{app, Endpoint, Verb, ENDPOINTS};
+pub use tokens::{create_token, list_tokens, revoke_token, TokenInfo};
 
 /// Server settings; the command line fills this from its flags.
 #[derive(Debug, Clone)]
@@ -50,11 +54,14 @@ pub struct Config {
     pub body_limit_bytes: usize,
     /// Upper bound of a claim's long-poll wait.
     pub max_claim_wait: Duration,
+    /// Let requests without a token use the read-only (GET) endpoints; everything else still
+    /// needs a token.
+    pub open_read: bool,
 }
 
 impl Config {
     /// Defaults: listen on 127.0.0.1:8080, 60 s leases, 3 attempts, 5 s first back-off,
-    /// 8 MiB bodies, 30 s long-poll.
+    /// 8 MiB bodies, 30 s long-poll, every endpoint but `/healthz` behind a token.
     pub fn new(db_path: impl Into<PathBuf>) -> Self {
         Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 8080)),
@@ -64,6 +71,7 @@ impl Config {
             retry_backoff: Duration::from_secs(5),
             body_limit_bytes: 8 * 1024 * 1024,
             max_claim_wait: Duration::from_secs(30),
+            open_read: false,
         }
     }
 }
@@ -80,6 +88,20 @@ pub enum ServeError {
     /// The listener failed.
     #[error("serving HTTP: {0}")]
     Io(#[from] std::io::Error),
+    /// A token name that cannot be used.
+    #[error("invalid token name `{name}`: {reason}")]
+    InvalidTokenName {
+        /// The name given.
+        name: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// A token with this name exists already (names stay taken after revocation).
+    #[error("a token named `{0}` already exists")]
+    TokenNameTaken(String),
+    /// No token has this name.
+    #[error("no token named `{0}`")]
+    TokenNotFound(String),
 }
 
 /// Shared by every request handler; cheap to clone.

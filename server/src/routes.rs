@@ -8,18 +8,21 @@ use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
 use axum::extract::{DefaultBodyLimit, FromRequest, Path, Query, Request, State};
 use axum::http::{header, StatusCode};
+use axum::middleware;
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post};
+use axum::routing::{on, MethodFilter, MethodRouter};
 use axum::{Json, Router};
 use repose_api::{
     BatchCreated, BatchRequest, BatchState, ClaimRequest, Completion, Failure, Health, Heartbeat,
-    HeartbeatResponse, JobUpdateResponse, Release, RunView, WorkerRegistered, WorkerRegistration,
+    HeartbeatResponse, JobUpdateResponse, Release, RunState, RunView, WorkerRegistered,
+    WorkerRegistration,
 };
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use tokio::time::Instant;
 use uuid::Uuid;
 
+use crate::auth::{authorize, Access, Caller};
 use crate::db::JobUpdate;
 use crate::error::AppError;
 use crate::{analysis, submit, AppState};
@@ -31,23 +34,130 @@ const CLAIM_RECHECK: Duration = Duration::from_millis(500);
 /// Batches listed by `GET /v1/batches`.
 const BATCH_LIST_LIMIT: u32 = 500;
 
-/// The router with every endpoint; `state` comes from [`AppState::open`].
+/// Workers listed by `GET /v1/workers`.
+const WORKER_LIST_LIMIT: u32 = 1000;
+
+/// Default and largest `limit` of `GET /v1/jobs`.
+const JOB_LIST_DEFAULT: u32 = 100;
+const JOB_LIST_MAX: u32 = 10_000;
+
+/// HTTP methods the API uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verb {
+    /// Reads.
+    Get,
+    /// Everything that changes state.
+    Post,
+}
+
+impl Verb {
+    /// Lower-case name, as in OpenAPI path items.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Verb::Get => "get",
+            Verb::Post => "post",
+        }
+    }
+
+    fn filter(self) -> MethodFilter {
+        match self {
+            Verb::Get => MethodFilter::GET,
+            Verb::Post => MethodFilter::POST,
+        }
+    }
+}
+
+/// One endpoint of the API: the route table below is the single source of the paths, their
+/// handlers and who may call them (the router is built from it, and the OpenAPI test compares
+/// `api/openapi.json` against it).
+#[derive(Debug, Clone, Copy)]
+pub struct Endpoint {
+    /// Method.
+    pub verb: Verb,
+    /// Path in axum syntax (`{id}` for a parameter, as in OpenAPI).
+    pub path: &'static str,
+    /// Who may call it.
+    pub access: Access,
+    /// Builds the method router for the endpoint's method.
+    handler: fn(MethodFilter) -> MethodRouter<AppState>,
+}
+
+const fn ep(
+    verb: Verb,
+    path: &'static str,
+    access: Access,
+    handler: fn(MethodFilter) -> MethodRouter<AppState>,
+) -> Endpoint {
+    Endpoint {
+        verb,
+        path,
+        access,
+        handler,
+    }
+}
+
+/// Every endpoint of the server.
+pub const ENDPOINTS: &[Endpoint] = &[
+    ep(Verb::Get, "/healthz", Access::Public, |m| on(m, health)),
+    ep(Verb::Post, "/v1/batches", Access::User, |m| {
+        on(m, create_batch)
+    }),
+    ep(Verb::Get, "/v1/batches", Access::Read, |m| {
+        on(m, list_batches)
+    }),
+    ep(Verb::Get, "/v1/batches/{id}", Access::Read, |m| {
+        on(m, batch_status)
+    }),
+    ep(Verb::Get, "/v1/batches/{id}/runs", Access::Read, |m| {
+        on(m, batch_runs)
+    }),
+    ep(Verb::Post, "/v1/batches/{id}/cancel", Access::User, |m| {
+        on(m, cancel_batch)
+    }),
+    ep(Verb::Get, "/v1/batches/{id}/analysis", Access::Read, |m| {
+        on(m, batch_analysis)
+    }),
+    ep(Verb::Get, "/v1/workers", Access::Read, |m| {
+        on(m, list_workers)
+    }),
+    ep(Verb::Get, "/v1/jobs", Access::Read, |m| on(m, list_jobs)),
+    ep(Verb::Post, "/v1/workers/register", Access::Worker, |m| {
+        on(m, register_worker)
+    }),
+    ep(Verb::Post, "/v1/jobs/claim", Access::Worker, |m| {
+        on(m, claim_job)
+    }),
+    ep(Verb::Post, "/v1/jobs/{id}/heartbeat", Access::Worker, |m| {
+        on(m, heartbeat)
+    }),
+    ep(Verb::Post, "/v1/jobs/{id}/complete", Access::Worker, |m| {
+        on(m, complete_job)
+    }),
+    ep(Verb::Post, "/v1/jobs/{id}/fail", Access::Worker, |m| {
+        on(m, fail_job)
+    }),
+    ep(Verb::Post, "/v1/jobs/{id}/release", Access::Worker, |m| {
+        on(m, release_job)
+    }),
+];
+
+/// The router with every endpoint of [`ENDPOINTS`], each behind its access check;
+/// `state` comes from [`AppState::open`].
 pub fn app(state: AppState) -> Router {
     let body_limit = state.config.body_limit_bytes;
-    Router::new()
-        .route("/healthz", get(health))
-        .route("/v1/batches", post(create_batch).get(list_batches))
-        .route("/v1/batches/{id}", get(batch_status))
-        .route("/v1/batches/{id}/runs", get(batch_runs))
-        .route("/v1/batches/{id}/cancel", post(cancel_batch))
-        .route("/v1/batches/{id}/analysis", get(batch_analysis))
-        .route("/v1/workers/register", post(register_worker))
-        .route("/v1/jobs/claim", post(claim_job))
-        .route("/v1/jobs/{id}/heartbeat", post(heartbeat))
-        .route("/v1/jobs/{id}/complete", post(complete_job))
-        .route("/v1/jobs/{id}/fail", post(fail_job))
-        .route("/v1/jobs/{id}/release", post(release_job))
+    let mut router = Router::new();
+    for endpoint in ENDPOINTS {
+        let guard = middleware::from_fn_with_state((state.clone(), endpoint.access), authorize);
+        router = router.route(
+            endpoint.path,
+            (endpoint.handler)(endpoint.verb.filter()).route_layer(guard),
+        );
+    }
+    router
         .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
+        .method_not_allowed_fallback(|| async {
+            AppError::MethodNotAllowed("method not allowed on this endpoint".into())
+        })
         .layer(DefaultBodyLimit::max(body_limit))
         .with_state(state)
 }
@@ -112,6 +222,7 @@ async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError>
 
 async fn create_batch(
     State(state): State<AppState>,
+    caller: Caller,
     ValidJson(request): ValidJson<BatchRequest>,
 ) -> Result<(StatusCode, Json<BatchCreated>), AppError> {
     let fallback_seed = Uuid::new_v4().as_u64_pair().0;
@@ -119,7 +230,7 @@ async fn create_batch(
     let plan = tokio::task::spawn_blocking(move || submit::plan_batch(request, fallback_seed))
         .await
         .map_err(|err| AppError::Internal(format!("planning task: {err}")))??;
-    let id = state.db.insert_batch(&plan).await?;
+    let id = state.db.insert_batch(&plan, &caller.name).await?;
     state.jobs_available.notify_waiters();
     tracing::info!(batch = %id, runs = plan.runs.len(), "batch submitted");
     Ok((
@@ -174,10 +285,11 @@ async fn batch_runs(
 
 async fn cancel_batch(
     State(state): State<AppState>,
+    caller: Caller,
     Path(raw_id): Path<String>,
 ) -> Result<impl IntoResponse, AppError> {
     let id = parse_id(&raw_id, "batch")?;
-    match state.db.cancel_batch(id).await? {
+    match state.db.cancel_batch(id, &caller.name).await? {
         None => Err(AppError::NotFound(format!("batch {id} not found"))),
         Some(BatchState::Completed) => {
             Err(AppError::Conflict(format!("batch {id} already completed")))
@@ -267,6 +379,54 @@ fn analyse_in_background(state: &AppState, batches: Vec<Uuid>) {
             }
         });
     }
+}
+
+async fn list_workers(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
+    Ok(Json(state.db.list_workers(WORKER_LIST_LIMIT).await?))
+}
+
+#[derive(Debug, Deserialize)]
+struct JobsQuery {
+    state: Option<String>,
+    batch: Option<String>,
+    limit: Option<String>,
+}
+
+/// Jobs, most recently changed first: `?state=queued|running|completed|dead|cancelled`,
+/// `?batch=<id>`, `?limit=` (default 100, at most 10 000).
+async fn list_jobs(
+    State(state): State<AppState>,
+    Query(query): Query<JobsQuery>,
+) -> Result<impl IntoResponse, AppError> {
+    let status = query
+        .state
+        .as_deref()
+        .map(|text| {
+            serde_json::from_value::<RunState>(serde_json::Value::String(text.to_owned())).map_err(
+                |_| {
+                    AppError::BadRequest(format!(
+                        "unknown state `{text}` (expected queued, running, completed, dead or \
+                         cancelled)"
+                    ))
+                },
+            )
+        })
+        .transpose()?;
+    let batch = query
+        .batch
+        .as_deref()
+        .map(|raw| parse_id(raw, "batch"))
+        .transpose()?;
+    let limit = match query.limit.as_deref() {
+        None => JOB_LIST_DEFAULT,
+        Some(text) => text.parse().unwrap_or(0),
+    };
+    if limit == 0 || limit > JOB_LIST_MAX {
+        return Err(AppError::BadRequest(format!(
+            "limit must be between 1 and {JOB_LIST_MAX}"
+        )));
+    }
+    Ok(Json(state.db.list_jobs(status, batch, limit).await?))
 }
 
 async fn register_worker(

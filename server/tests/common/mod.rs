@@ -9,7 +9,7 @@ use std::time::Duration;
 use repose_api::{
     AnalysisView, BatchCreated, BatchStatus, ClaimResponse, Completion, RunView, WorkerRegistration,
 };
-use repose_server::{serve, Config, ServeError};
+use repose_server::{create_token, serve, Config, ServeError, TokenRole};
 use reqwest::StatusCode;
 use serde_json::{json, Value};
 use tokio::net::TcpListener;
@@ -17,17 +17,36 @@ use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use uuid::Uuid;
 
-/// A running server and the means to stop it.
+/// A running server and the means to stop it, with one user and one worker token.
 pub struct TestServer {
     pub url: String,
     pub client: reqwest::Client,
+    /// Name of the user token (owner of the batches this harness submits).
+    pub user_name: String,
+    /// Secret of a user (API) token.
+    pub user_token: String,
+    /// Secret of a worker token.
+    pub worker_token: String,
     stop: Option<oneshot::Sender<()>>,
     task: Option<JoinHandle<Result<(), ServeError>>>,
 }
 
 impl TestServer {
-    /// Starts a server on the database at `db_path`, letting `tweak` adjust the config.
+    /// Starts a server on the database at `db_path`, letting `tweak` adjust the config, after
+    /// creating a fresh user and worker token in it.
     pub async fn start(db_path: &Path, tweak: impl FnOnce(&mut Config)) -> TestServer {
+        let suffix = Uuid::new_v4().simple().to_string();
+        let user_name = format!("user-{}", &suffix[..8]);
+        let user_token = create_token(db_path, &user_name, TokenRole::User)
+            .await
+            .unwrap();
+        let worker_token = create_token(
+            db_path,
+            &format!("worker-{}", &suffix[..8]),
+            TokenRole::Worker,
+        )
+        .await
+        .unwrap();
         let mut config = Config::new(db_path);
         config.retry_backoff = Duration::ZERO;
         tweak(&mut config);
@@ -40,6 +59,9 @@ impl TestServer {
         let server = TestServer {
             url,
             client: reqwest::Client::new(),
+            user_name,
+            user_token,
+            worker_token,
             stop: Some(stop),
             task: Some(task),
         };
@@ -69,42 +91,71 @@ impl TestServer {
         }
     }
 
+    /// The token a POST to `path` is sent with: the worker token for the worker protocol
+    /// (`/v1/workers/…`, `/v1/jobs/…`), the user token otherwise.
+    fn token_for_post(&self, path: &str) -> &str {
+        if path.starts_with("/v1/jobs") || path.starts_with("/v1/workers") {
+            &self.worker_token
+        } else {
+            &self.user_token
+        }
+    }
+
+    /// POST with the token the path needs.
     pub async fn post(&self, path: &str, body: &Value) -> (StatusCode, Value) {
-        let response = self
-            .client
-            .post(self.url(path))
-            .json(body)
-            .send()
+        self.post_as(path, body, Some(self.token_for_post(path)))
             .await
-            .unwrap();
-        let status = response.status();
-        let text = response.text().await.unwrap();
-        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+    }
+
+    /// POST with an explicit token, or none.
+    pub async fn post_as(
+        &self,
+        path: &str,
+        body: &Value,
+        token: Option<&str>,
+    ) -> (StatusCode, Value) {
+        let mut request = self.client.post(self.url(path)).json(body);
+        if let Some(token) = token {
+            request = request.bearer_auth(token);
+        }
+        json_reply(request.send().await.unwrap()).await
     }
 
     pub async fn post_raw(&self, path: &str, body: &str) -> (StatusCode, Value) {
         let response = self
             .client
             .post(self.url(path))
+            .bearer_auth(self.token_for_post(path))
             .header("content-type", "application/json")
             .body(body.to_owned())
             .send()
             .await
             .unwrap();
-        let status = response.status();
-        let text = response.text().await.unwrap();
-        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+        json_reply(response).await
     }
 
+    /// GET with the user token.
     pub async fn get(&self, path: &str) -> (StatusCode, Value) {
-        let response = self.client.get(self.url(path)).send().await.unwrap();
-        let status = response.status();
-        let text = response.text().await.unwrap();
-        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+        self.get_as(path, Some(&self.user_token)).await
+    }
+
+    /// GET with an explicit token, or none.
+    pub async fn get_as(&self, path: &str, token: Option<&str>) -> (StatusCode, Value) {
+        let mut request = self.client.get(self.url(path));
+        if let Some(token) = token {
+            request = request.bearer_auth(token);
+        }
+        json_reply(request.send().await.unwrap()).await
     }
 
     pub async fn get_text(&self, path: &str) -> (StatusCode, String) {
-        let response = self.client.get(self.url(path)).send().await.unwrap();
+        let response = self
+            .client
+            .get(self.url(path))
+            .bearer_auth(&self.user_token)
+            .send()
+            .await
+            .unwrap();
         (response.status(), response.text().await.unwrap())
     }
 
@@ -180,6 +231,13 @@ impl TestServer {
         }
         panic!("analysis of {batch} never appeared");
     }
+}
+
+/// Status and JSON body of a reply (`Null` when the body is not JSON).
+pub async fn json_reply(response: reqwest::Response) -> (StatusCode, Value) {
+    let status = response.status();
+    let text = response.text().await.unwrap();
+    (status, serde_json::from_str(&text).unwrap_or(Value::Null))
 }
 
 /// The fake DEM run: angle = 20 + 25 μ − 8 e + seed-dependent noise of ±0.1°.
