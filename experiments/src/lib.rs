@@ -6,4 +6,5 @@
 
 pub mod aor;
 pub mod catalog;
+pub mod drill;
 pub mod replay;

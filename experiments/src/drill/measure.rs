@@ -1,0 +1,285 @@
+//! Measuring the hole from particle positions: a surface height field read by a probe sphere,
+//! the opening at the original surface level, the effective depth along the axis, and the
+//! backfill of the drilled cylinder.
+//!
+//! Frame: z up, bin floor at z = 0, drill axis through `axis` (x, y).
+
+use serde::{Deserialize, Serialize};
+
+/// Why the hole could not be measured.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeasureError {
+    #[error("no grains to measure")]
+    NoGrains,
+    #[error("{field} must be finite and > 0, got {value}")]
+    BadSetting { field: &'static str, value: f64 },
+    #[error("positions ({positions}) and radii ({radii}) differ in length")]
+    LengthMismatch { positions: usize, radii: usize },
+}
+
+/// Surface heights on a regular grid of square cells covering `[x0, x0 + nx cell] × [y0, y0 +
+/// ny cell]`. `z[j * nx + i]` is the height at the centre of cell (i, j): the lowest height at
+/// which a probe sphere lowered along that vertical would touch a grain (its bottom point), or
+/// `floor` where it meets none.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeightField {
+    pub x0: f64,
+    pub y0: f64,
+    /// m
+    pub cell: f64,
+    pub nx: usize,
+    pub ny: usize,
+    /// m, row-major (x fastest).
+    pub z: Vec<f64>,
+}
+
+impl HeightField {
+    /// Centre of cell `i` along x.
+    pub fn x(&self, i: usize) -> f64 {
+        self.x0 + (i as f64 + 0.5) * self.cell
+    }
+
+    /// Centre of cell `j` along y.
+    pub fn y(&self, j: usize) -> f64 {
+        self.y0 + (j as f64 + 0.5) * self.cell
+    }
+
+    pub fn at(&self, i: usize, j: usize) -> f64 {
+        self.z[j * self.nx + i]
+    }
+
+    /// The cell containing (x, y), clamped to the grid.
+    pub fn cell_of(&self, x: f64, y: f64) -> (usize, usize) {
+        let i = ((x - self.x0) / self.cell)
+            .floor()
+            .clamp(0.0, (self.nx - 1) as f64) as usize;
+        let j = ((y - self.y0) / self.cell)
+            .floor()
+            .clamp(0.0, (self.ny - 1) as f64) as usize;
+        (i, j)
+    }
+}
+
+/// Height field over the rectangle `[-half_x, half_x] × [-half_y, half_y]` with cells of side
+/// `cell`, read by a probe sphere of radius `probe` (0: the bare grain tops, which show the gaps
+/// between surface grains as pits).
+pub fn height_field(
+    positions: &[[f64; 3]],
+    radii: &[f64],
+    half_x: f64,
+    half_y: f64,
+    cell: f64,
+    probe: f64,
+    floor: f64,
+) -> Result<HeightField, MeasureError> {
+    if positions.len() != radii.len() {
+        return Err(MeasureError::LengthMismatch {
+            positions: positions.len(),
+            radii: radii.len(),
+        });
+    }
+    for (field, value) in [("half_x", half_x), ("half_y", half_y), ("cell", cell)] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(MeasureError::BadSetting { field, value });
+        }
+    }
+    if !(probe.is_finite() && probe >= 0.0) {
+        return Err(MeasureError::BadSetting {
+            field: "probe",
+            value: probe,
+        });
+    }
+    let nx = ((2.0 * half_x / cell).ceil() as usize).max(1);
+    let ny = ((2.0 * half_y / cell).ceil() as usize).max(1);
+    let mut hf = HeightField {
+        x0: -0.5 * nx as f64 * cell,
+        y0: -0.5 * ny as f64 * cell,
+        cell,
+        nx,
+        ny,
+        z: vec![floor; nx * ny],
+    };
+    for (p, &r) in positions.iter().zip(radii) {
+        let reach = r + probe;
+        let (i0, j0) = hf.cell_of(p[0] - reach, p[1] - reach);
+        let (i1, j1) = hf.cell_of(p[0] + reach, p[1] + reach);
+        for j in j0..=j1 {
+            let dy = hf.y(j) - p[1];
+            for i in i0..=i1 {
+                let dx = hf.x(i) - p[0];
+                let rho2 = dx * dx + dy * dy;
+                if rho2 < reach * reach {
+                    let h = p[2] + (reach * reach - rho2).sqrt() - probe;
+                    let z = &mut hf.z[j * nx + i];
+                    if h > *z {
+                        *z = h;
+                    }
+                }
+            }
+        }
+    }
+    Ok(hf)
+}
+
+/// The median height of the cells at least `margin` inside the rectangle's edges (all cells if
+/// none are): the level of a surface as it is, insensitive to a hole or a heap.
+pub fn surface_level(hf: &HeightField, margin: f64) -> f64 {
+    let (hx, hy) = (0.5 * hf.nx as f64 * hf.cell, 0.5 * hf.ny as f64 * hf.cell);
+    let mut inner: Vec<f64> = Vec::new();
+    for j in 0..hf.ny {
+        for i in 0..hf.nx {
+            if hf.x(i).abs() <= hx - margin && hf.y(j).abs() <= hy - margin {
+                inner.push(hf.at(i, j));
+            }
+        }
+    }
+    if inner.is_empty() {
+        inner = hf.z.clone();
+    }
+    inner.sort_by(f64::total_cmp);
+    inner[inner.len() / 2]
+}
+
+/// What the hole looks like after the auger is out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HoleMeasurement {
+    /// Original surface level (before drilling), m above the floor.
+    pub surface_z: f64,
+    /// Cells whose surface is below this height belong to the opening, m.
+    pub open_below_z: f64,
+    /// Area of the connected opening around the axis at the original surface level, m².
+    pub opening_area: f64,
+    /// Diameter of the circle of that area, m.
+    pub opening_diameter: f64,
+    /// Width of the opening along x and along y through the axis, m.
+    pub opening_x: f64,
+    pub opening_y: f64,
+    /// Surface height on the axis (the bottom of the open hole), m.
+    pub bottom_z: f64,
+    /// `surface_z - bottom_z`, m.
+    pub effective_depth: f64,
+    /// Highest point of the surface within two auger diameters of the axis, above `surface_z`
+    /// (the spoil heaped around the hole), m.
+    pub rim_height: f64,
+}
+
+/// Measures the opening and the depth of the hole on `hf` around `axis`. `open_depth`: how far
+/// below `surface_z` a cell must be to count as open; `search_radius`: if the axis cell itself
+/// is not open, the open cell nearest the axis within this radius starts the opening (none: the
+/// hole is closed at the top and the opening is zero).
+pub fn measure_hole(
+    hf: &HeightField,
+    surface_z: f64,
+    axis: [f64; 2],
+    open_depth: f64,
+    search_radius: f64,
+) -> HoleMeasurement {
+    let open_below_z = surface_z - open_depth;
+    let is_open = |i: usize, j: usize| hf.at(i, j) < open_below_z;
+    let (ia, ja) = hf.cell_of(axis[0], axis[1]);
+    let seed = if is_open(ia, ja) {
+        Some((ia, ja))
+    } else {
+        let mut best: Option<((usize, usize), f64)> = None;
+        let reach = (search_radius / hf.cell).ceil() as isize;
+        for dj in -reach..=reach {
+            for di in -reach..=reach {
+                let (i, j) = (ia as isize + di, ja as isize + dj);
+                if i < 0 || j < 0 || i >= hf.nx as isize || j >= hf.ny as isize {
+                    continue;
+                }
+                let (i, j) = (i as usize, j as usize);
+                let dist = (hf.x(i) - axis[0]).hypot(hf.y(j) - axis[1]);
+                if dist <= search_radius && is_open(i, j) && best.is_none_or(|(_, d)| dist < d) {
+                    best = Some(((i, j), dist));
+                }
+            }
+        }
+        best.map(|(c, _)| c)
+    };
+    // Flood fill (4-connected) from the seed over open cells.
+    let mut region = vec![false; hf.nx * hf.ny];
+    let mut count = 0usize;
+    if let Some((i, j)) = seed {
+        let mut stack = vec![(i, j)];
+        region[j * hf.nx + i] = true;
+        while let Some((i, j)) = stack.pop() {
+            count += 1;
+            let mut visit = |i: usize, j: usize| {
+                if is_open(i, j) && !region[j * hf.nx + i] {
+                    region[j * hf.nx + i] = true;
+                    stack.push((i, j));
+                }
+            };
+            if i > 0 {
+                visit(i - 1, j);
+            }
+            if i + 1 < hf.nx {
+                visit(i + 1, j);
+            }
+            if j > 0 {
+                visit(i, j - 1);
+            }
+            if j + 1 < hf.ny {
+                visit(i, j + 1);
+            }
+        }
+    }
+    let extent = |cells: &mut dyn Iterator<Item = usize>| -> f64 {
+        let (mut lo, mut hi) = (usize::MAX, 0usize);
+        let mut any = false;
+        for k in cells {
+            any = true;
+            lo = lo.min(k);
+            hi = hi.max(k);
+        }
+        if any {
+            (hi - lo + 1) as f64 * hf.cell
+        } else {
+            0.0
+        }
+    };
+    let opening_x = extent(&mut (0..hf.nx).filter(|&i| region[ja * hf.nx + i]));
+    let opening_y = extent(&mut (0..hf.ny).filter(|&j| region[j * hf.nx + ia]));
+    let opening_area = count as f64 * hf.cell * hf.cell;
+    let bottom_z = hf.at(ia, ja);
+    let mut rim = f64::NEG_INFINITY;
+    for j in 0..hf.ny {
+        for i in 0..hf.nx {
+            if (hf.x(i) - axis[0]).hypot(hf.y(j) - axis[1]) <= 2.0 * search_radius {
+                rim = rim.max(hf.at(i, j));
+            }
+        }
+    }
+    HoleMeasurement {
+        surface_z,
+        open_below_z,
+        opening_area,
+        opening_diameter: 2.0 * (opening_area / std::f64::consts::PI).sqrt(),
+        opening_x,
+        opening_y,
+        bottom_z,
+        effective_depth: surface_z - bottom_z,
+        rim_height: rim - surface_z,
+    }
+}
+
+/// Solid volume (m³) of the grains whose centres lie in the vertical cylinder of `radius` about
+/// `axis` between `z_lo` and `z_hi`.
+pub fn solid_volume_in_cylinder(
+    positions: &[[f64; 3]],
+    radii: &[f64],
+    axis: [f64; 2],
+    radius: f64,
+    z_lo: f64,
+    z_hi: f64,
+) -> f64 {
+    positions
+        .iter()
+        .zip(radii)
+        .filter(|(p, _)| {
+            p[2] >= z_lo && p[2] <= z_hi && (p[0] - axis[0]).hypot(p[1] - axis[1]) <= radius
+        })
+        .map(|(_, r)| 4.0 / 3.0 * std::f64::consts::PI * r.powi(3))
+        .sum()
+}

@@ -1,0 +1,673 @@
+//! Runs a [`DrillSpec`] on a settled bed: the auger turns and feeds into the soil, is withdrawn
+//! still turning, is lifted clear, the soil settles, and the hole is measured.
+//!
+//! Frame: z up, bin floor at z = 0, drill axis = z axis. The auger's tip starts
+//! `drill.start_clearance` above the bed's surface level and is fed `drill.depth` below it.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use repose_engine::kinematics::{Motion, RotationSegment, TranslationSegment};
+use repose_engine::math::{Pose, Vec3};
+use repose_engine::mesh::generators::{auger, AugerSpec};
+use repose_engine::particles::ParticleSpec;
+use repose_engine::world::{Geometry, GeometryId, World};
+use serde::{Deserialize, Serialize};
+
+use super::bed::{
+    bed_key, bin_world, build_bed, kinetic_energy_ratio, setup, SettledBed, SplitMix,
+};
+use super::measure::{
+    height_field, measure_hole, solid_volume_in_cylinder, HeightField, HoleMeasurement,
+};
+use super::picture::{forces_svg, section_svg};
+use super::spec::{DrillSpec, SpecError};
+use crate::aor::Control;
+
+/// Why a run could not start or was stopped before it could report (a finished run whose soil
+/// did not settle is a [`DrillResult`] with a non-`ok` status, not an error).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DrillError {
+    #[error(transparent)]
+    Spec(#[from] SpecError),
+    /// The engine rejected the world built from the spec (materials, mesh, grains).
+    #[error("{part}: {reason}")]
+    Build { part: &'static str, reason: String },
+    /// The bed handed to [`run_drill_on_bed`] was built for other parameters.
+    #[error("the bed was built for other parameters (bed key {found}, the spec needs {expected})")]
+    BedMismatch { expected: String, found: String },
+    /// The progress callback cancelled while the bed was being built.
+    #[error("cancelled")]
+    Cancelled,
+    /// `wall_time_cap` ran out while the bed was being built.
+    #[error("wall_time_cap ({cap_s} s) reached while building the {phase}")]
+    WallTimeCap { phase: &'static str, cap_s: f64 },
+}
+
+pub(crate) fn build_error(part: &'static str, e: impl std::fmt::Display) -> DrillError {
+    DrillError::Build {
+        part,
+        reason: e.to_string(),
+    }
+}
+
+/// What the progress callback is told.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress<'a> {
+    /// 0..1, monotonic over the whole run (bed included when [`run_drill`] builds it).
+    pub fraction: f64,
+    /// `bed`, `feeding`, `withdrawing`, `lifting`, `settling`, `measuring`.
+    pub phase: &'a str,
+    /// Simulated time of the current phase's world, s.
+    pub time: f64,
+    pub particles: usize,
+}
+
+/// Overall outcome. Hole metrics are reported for `ok` and `not_settled`; only `ok` feeds
+/// [`DrillResult::metrics`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DrillStatus {
+    Ok,
+    /// The bed or the soil after withdrawal did not come to rest within the time cap.
+    NotSettled,
+    /// The wall-clock cap ended the run.
+    WallTimeCap,
+    Cancelled,
+    /// The grains could not be measured.
+    MeasurementFailed,
+}
+
+/// One point of the drill's load series (averaged over `measure.series_interval`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LoadSample {
+    /// s since the feed started.
+    pub time_s: f64,
+    /// Depth of the tip below the original surface, mm (negative above it).
+    pub tip_depth_mm: f64,
+    /// Torque the drive must supply about the axis in the turning sense, N·m (positive: the
+    /// soil resists the rotation).
+    pub torque_nm: f64,
+    /// Vertical force of the soil on the auger, N (positive: upward, resisting the feed).
+    pub axial_force_n: f64,
+}
+
+/// Facts about the bed the run used.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BedInfo {
+    pub key: String,
+    pub particles: usize,
+    pub settled: bool,
+    /// True if the bed was handed in (e.g. from a cache) rather than built by this call.
+    pub reused: bool,
+    pub surface_z_mm: f64,
+    pub simulated_time_s: f64,
+    pub wall_time_s: f64,
+}
+
+/// The result of one drilling run (serde; what `result.json` holds). Hole lengths in mm,
+/// forces in N, torques in N·m, energies in J, times in s.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DrillResult {
+    pub status: DrillStatus,
+    pub message: Option<String>,
+    /// Diameter of the circle with the opening's area, at the original surface level.
+    pub opening_diameter_mm: Option<f64>,
+    /// Widths of the opening along x and y through the axis.
+    pub opening_diameter_x_mm: Option<f64>,
+    pub opening_diameter_y_mm: Option<f64>,
+    pub opening_area_mm2: Option<f64>,
+    /// From the original surface level down to the surface on the axis.
+    pub effective_depth_mm: Option<f64>,
+    /// The depth the tip was fed to below the original surface.
+    pub feed_depth_mm: f64,
+    /// `effective_depth_mm / feed_depth_mm`: how the scaled-down presets compare with the
+    /// paper (603.66 / 600 measured, 601.23 / 600 simulated).
+    pub depth_ratio: Option<f64>,
+    /// Solid volume of grains back in the drilled cylinder (auger diameter, from the original
+    /// surface to the feed depth) after settling, over the solid volume there before drilling.
+    pub backfill_ratio: Option<f64>,
+    /// Highest spoil around the hole above the original surface.
+    pub rim_height_mm: Option<f64>,
+    pub auger_diameter_mm: f64,
+    /// Drive torque and axial force: peak (of the `measure.series_interval` averages) and mean
+    /// over the feed.
+    pub peak_torque_nm: f64,
+    pub mean_feed_torque_nm: f64,
+    pub peak_axial_force_n: f64,
+    pub mean_feed_axial_force_n: f64,
+    /// Work done by the drive (rotation) and by the feed/lift (translation), and their sum.
+    pub rotation_energy_j: f64,
+    pub feed_energy_j: f64,
+    pub energy_j: f64,
+    pub series: Vec<LoadSample>,
+    pub bed: BedInfo,
+    pub grain_diameter_mm: f64,
+    pub particles: usize,
+    /// Grains that left the bin (flung over the walls).
+    pub escaped: u64,
+    /// Grains still on the lifted auger at the end (carried out; not measured).
+    pub carried_out: usize,
+    pub kinetic_energy_ratio: f64,
+    /// Simulated time of the drilling run (after the bed), s.
+    pub simulated_time_s: f64,
+    pub steps: u64,
+    pub time_step_s: f64,
+    /// Wall time of this call (bed included if it was built here), s.
+    pub wall_time_s: f64,
+}
+
+impl DrillResult {
+    /// Scalar results for a job server (empty unless `status` is `ok`): `opening_diameter_mm`,
+    /// `opening_diameter_x_mm`, `opening_diameter_y_mm`, `opening_area_mm2`,
+    /// `effective_depth_mm`, `depth_ratio`, `backfill_ratio`, `rim_height_mm`,
+    /// `peak_torque_nm`, `mean_feed_torque_nm`, `peak_axial_force_n`,
+    /// `mean_feed_axial_force_n`, `energy_j`, `rotation_energy_j`, `feed_energy_j`,
+    /// `simulated_time_s`, `particles`.
+    pub fn metrics(&self) -> BTreeMap<String, f64> {
+        let mut m = BTreeMap::new();
+        if self.status != DrillStatus::Ok {
+            return m;
+        }
+        let values = [
+            ("opening_diameter_mm", self.opening_diameter_mm),
+            ("opening_diameter_x_mm", self.opening_diameter_x_mm),
+            ("opening_diameter_y_mm", self.opening_diameter_y_mm),
+            ("opening_area_mm2", self.opening_area_mm2),
+            ("effective_depth_mm", self.effective_depth_mm),
+            ("depth_ratio", self.depth_ratio),
+            ("backfill_ratio", self.backfill_ratio),
+            ("rim_height_mm", self.rim_height_mm),
+            ("peak_torque_nm", Some(self.peak_torque_nm)),
+            ("mean_feed_torque_nm", Some(self.mean_feed_torque_nm)),
+            ("peak_axial_force_n", Some(self.peak_axial_force_n)),
+            (
+                "mean_feed_axial_force_n",
+                Some(self.mean_feed_axial_force_n),
+            ),
+            ("energy_j", Some(self.energy_j)),
+            ("rotation_energy_j", Some(self.rotation_energy_j)),
+            ("feed_energy_j", Some(self.feed_energy_j)),
+            ("simulated_time_s", Some(self.simulated_time_s)),
+            ("particles", Some(self.particles as f64)),
+        ];
+        for (k, v) in values {
+            if let Some(v) = v.filter(|v| v.is_finite()) {
+                m.insert(k.to_owned(), v);
+            }
+        }
+        m
+    }
+}
+
+/// A finished run: the result plus what a caller may want to draw or save.
+#[derive(Debug)]
+pub struct DrillRun {
+    pub result: DrillResult,
+    pub measurement: Option<HoleMeasurement>,
+    /// Surface after settling (probe height field).
+    pub surface: Option<HeightField>,
+    /// Grains measured (those left on the auger excluded).
+    pub positions: Vec<[f64; 3]>,
+    pub radii: Vec<f64>,
+    /// The bed the run started from.
+    pub bed: SettledBed,
+    /// The spec that ran.
+    pub spec: DrillSpec,
+    /// The final world (e.g. for `write_particles_csv`).
+    pub world: World,
+}
+
+impl DrillRun {
+    /// Vertical section (x-z) through the hole axis: grains cut by the plane y = 0, the
+    /// original surface, the final surface profile, the auger outline at full depth.
+    pub fn section_svg(&self) -> String {
+        section_svg(self)
+    }
+
+    /// Torque and axial force against time (and the tip depth).
+    pub fn forces_svg(&self) -> String {
+        forces_svg(&self.result)
+    }
+
+    /// The series as CSV text: `time_s,tip_depth_mm,torque_nm,axial_force_n`.
+    pub fn forces_csv(&self) -> String {
+        let mut s = String::from("time_s,tip_depth_mm,torque_nm,axial_force_n\n");
+        for p in &self.result.series {
+            s.push_str(&format!(
+                "{},{},{},{}\n",
+                p.time_s, p.tip_depth_mm, p.torque_nm, p.axial_force_n
+            ));
+        }
+        s
+    }
+}
+
+/// Builds the bed and drills it: [`build_bed`] then [`run_drill_on_bed`]. The bed takes the first
+/// quarter of the progress fraction.
+pub fn run_drill(
+    spec: &DrillSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<DrillRun, DrillError> {
+    let started = Instant::now();
+    let bed = match build_bed(spec, &mut |p| {
+        progress(Progress {
+            fraction: 0.25 * p.fraction,
+            phase: "bed",
+            time: p.time,
+            particles: p.particles,
+        })
+    }) {
+        Ok(bed) => bed,
+        Err(e) => return Err(e),
+    };
+    let mut run = drill(spec, bed, false, &mut |p| {
+        progress(Progress {
+            fraction: 0.25 + 0.75 * p.fraction,
+            ..p
+        })
+    })?;
+    run.result.wall_time_s = started.elapsed().as_secs_f64();
+    Ok(run)
+}
+
+/// Drills a bed built earlier by [`build_bed`] for a spec with the same [`bed_key`] (e.g. read
+/// back from a cache). Same outcome, bit for bit, as [`run_drill`] on that spec.
+pub fn run_drill_on_bed(
+    spec: &DrillSpec,
+    bed: SettledBed,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<DrillRun, DrillError> {
+    let expected = bed_key(spec);
+    if bed.key != expected {
+        return Err(DrillError::BedMismatch {
+            expected,
+            found: bed.key,
+        });
+    }
+    drill(spec, bed, true, progress)
+}
+
+/// Angle the auger starts at, from the seed (replicates on one shared bed still differ).
+fn start_angle(seed: u64) -> f64 {
+    let mut rng = SplitMix(seed ^ 0xa0_6e12_0000_0002);
+    (rng.symmetric() + 1.0) * std::f64::consts::PI
+}
+
+fn drill(
+    spec: &DrillSpec,
+    bed: SettledBed,
+    reused: bool,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<DrillRun, DrillError> {
+    let started = Instant::now();
+    let s = setup(spec)?;
+    let a = &spec.auger;
+    let d = &spec.drill;
+    let surface = bed.surface_z;
+    let start_z = surface + d.start_clearance;
+    let travel = d.depth + d.start_clearance;
+
+    // Auger: the flight starts above the tip and reaches `flight_above_surface` above the
+    // original surface at full depth; the shaft goes one pitch further.
+    let flight_length = (d.depth - a.tip_length + a.flight_above_surface).max(a.pitch);
+    let shaft_length = a.tip_length + flight_length + 0.5 * a.flight_thickness + a.pitch;
+    let mesh = auger(&AugerSpec {
+        shaft_diameter: a.shaft_diameter,
+        flight_outer_diameter: a.outer_diameter,
+        pitch: a.pitch,
+        flight_length,
+        flight_thickness: a.flight_thickness,
+        shaft_length,
+        tip_length: a.tip_length,
+        segments_per_turn: a.segments_per_turn,
+        right_handed: true,
+    })
+    .map_err(|e| build_error("auger", e))?;
+    let t_feed = travel / d.feed_speed;
+    let t_withdraw = t_feed + travel / d.withdraw_speed;
+    let t_lift = t_withdraw + d.lift_height / d.lift_speed;
+    let rpm = if d.clockwise { -d.rpm } else { d.rpm };
+    let motion = Motion::new(
+        Pose::new(
+            Vec3::new(0.0, 0.0, start_z),
+            Vec3::new(0.0, 0.0, start_angle(spec.seed)),
+        ),
+        vec![
+            TranslationSegment {
+                velocity: Vec3::new(0.0, 0.0, -d.feed_speed),
+                start: 0.0,
+                stop: t_feed,
+            },
+            TranslationSegment {
+                velocity: Vec3::new(0.0, 0.0, d.withdraw_speed),
+                start: t_feed,
+                stop: t_withdraw,
+            },
+            TranslationSegment {
+                velocity: Vec3::new(0.0, 0.0, d.lift_speed),
+                start: t_withdraw,
+                stop: t_lift,
+            },
+        ],
+        vec![RotationSegment {
+            axis: Vec3::z(),
+            axis_point: Vec3::zeros(),
+            rpm,
+            start: 0.0,
+            stop: t_withdraw,
+        }],
+    )
+    .map_err(|e| build_error("drill", e))?;
+
+    // Room above the surface for flung grains; grains leaving the domain are counted escaped.
+    let top = spec.bin.height.max(surface) + 0.1 + d.lift_height;
+    let mut world = bin_world(spec, &s, top, spec.seed)?;
+    for k in 0..bed.positions.len() {
+        let v = |x: [f64; 3]| Vec3::new(x[0], x[1], x[2]);
+        world
+            .add_particle(ParticleSpec {
+                position: v(bed.positions[k]),
+                velocity: v(bed.velocities[k]),
+                angular_velocity: v(bed.angular_velocities[k]),
+                radius: bed.radii[k],
+                material: s.soil,
+            })
+            .map_err(|e| build_error("bed", e))?;
+    }
+    let auger_id = world
+        .add_geometry(Geometry {
+            name: "auger".into(),
+            mesh,
+            motion: motion.clone(),
+            material: s.steel,
+        })
+        .map_err(|e| build_error("auger", e))?;
+
+    // Run: the motion, then settling checks.
+    let settle = &spec.settle;
+    let first_check = t_lift + settle.min_time;
+    let deadline = t_lift + settle.time_cap;
+    let nominal_end = first_check;
+    let mut next_check = first_check;
+    let mut ke = f64::INFINITY;
+    let mut came_to_rest = false;
+    let mut stopped: Option<DrillStatus> = None;
+    loop {
+        world.step();
+        let t = world.time();
+        let is_check = t >= next_check;
+        if is_check {
+            next_check += settle.check_interval;
+            ke = kinetic_energy_ratio(&world);
+            came_to_rest = ke < settle.kinetic_energy_threshold;
+        }
+        if world.steps() % 200 == 0 || is_check {
+            let phase = if t < t_feed {
+                "feeding"
+            } else if t < t_withdraw {
+                "withdrawing"
+            } else if t < t_lift {
+                "lifting"
+            } else {
+                "settling"
+            };
+            let fraction = if came_to_rest {
+                1.0
+            } else {
+                0.99 * (t / nominal_end).min(1.0)
+            };
+            let control = progress(Progress {
+                fraction,
+                phase,
+                time: t,
+                particles: world.particles().len(),
+            });
+            if control == Control::Cancel {
+                stopped = Some(DrillStatus::Cancelled);
+                break;
+            }
+            if let Some(cap) = spec.wall_time_cap {
+                if started.elapsed().as_secs_f64() > cap {
+                    stopped = Some(DrillStatus::WallTimeCap);
+                    break;
+                }
+            }
+        }
+        if came_to_rest || t >= deadline {
+            break;
+        }
+    }
+    let _ = progress(Progress {
+        fraction: 1.0,
+        phase: "measuring",
+        time: world.time(),
+        particles: world.particles().len(),
+    });
+
+    // Loads.
+    let loads = load_series(&world, auger_id, &motion, surface, spec);
+
+    // The grains not resting on the lifted auger.
+    let tip_z = motion.reference_point_at(world.time()).z;
+    let reach = 0.5 * a.outer_diameter;
+    let p = world.particles();
+    let mut positions = Vec::with_capacity(p.len());
+    let mut radii = Vec::with_capacity(p.len());
+    let mut carried_out = 0;
+    for k in 0..p.len() {
+        let x = p.position[k];
+        if x.z > tip_z && x.x.hypot(x.y) < reach + p.radius[k] {
+            carried_out += 1;
+            continue;
+        }
+        positions.push([x.x, x.y, x.z]);
+        radii.push(p.radius[k]);
+    }
+    let mean_r = bed.radii.iter().sum::<f64>() / bed.radii.len().max(1) as f64;
+    let m = &spec.measure;
+    let hf = height_field(
+        &positions,
+        &radii,
+        0.5 * spec.bin.size_x,
+        0.5 * spec.bin.size_y,
+        m.cell_fraction * mean_r,
+        m.probe_fraction * mean_r,
+        0.0,
+    );
+    let (measurement, surface_field, measure_error) = match hf {
+        Ok(hf) if !positions.is_empty() => {
+            let hole = measure_hole(
+                &hf,
+                surface,
+                [0.0, 0.0],
+                m.open_depth_diameters * 2.0 * mean_r,
+                reach,
+            );
+            (Some(hole), Some(hf), None)
+        }
+        Ok(_) => (None, None, Some("no grains left to measure".to_owned())),
+        Err(e) => (None, None, Some(e.to_string())),
+    };
+    let cylinder = |pos: &[[f64; 3]], r: &[f64]| {
+        solid_volume_in_cylinder(pos, r, [0.0, 0.0], reach, surface - d.depth, surface)
+    };
+    let before = cylinder(&bed.positions, &bed.radii);
+    let after = cylinder(&positions, &radii);
+    let backfill = (before > 0.0).then(|| after / before);
+
+    let (status, message) = match stopped {
+        Some(DrillStatus::Cancelled) => (DrillStatus::Cancelled, Some("cancelled".to_owned())),
+        Some(status) => (
+            status,
+            Some(format!(
+                "wall_time_cap ({} s) reached at t = {:.3} s",
+                spec.wall_time_cap.unwrap_or_default(),
+                world.time()
+            )),
+        ),
+        None => {
+            if let Some(e) = measure_error {
+                (DrillStatus::MeasurementFailed, Some(e))
+            } else if !bed.settled {
+                (
+                    DrillStatus::NotSettled,
+                    Some(format!(
+                        "the bed did not come to rest (kinetic energy ratio {:.2e} > {:.2e})",
+                        bed.kinetic_energy_ratio, spec.bed.settle.kinetic_energy_threshold
+                    )),
+                )
+            } else if !came_to_rest {
+                (
+                    DrillStatus::NotSettled,
+                    Some(format!(
+                        "the soil did not come to rest after withdrawal (kinetic energy ratio \
+                         {ke:.2e} > {:.2e})",
+                        settle.kinetic_energy_threshold
+                    )),
+                )
+            } else {
+                (DrillStatus::Ok, None)
+            }
+        }
+    };
+    let report = matches!(status, DrillStatus::Ok | DrillStatus::NotSettled);
+    let hole = measurement.as_ref().filter(|_| report);
+    let mm = |f: &dyn Fn(&HoleMeasurement) -> f64| hole.map(|h| 1e3 * f(h));
+    let result = DrillResult {
+        status,
+        message,
+        opening_diameter_mm: mm(&|h| h.opening_diameter),
+        opening_diameter_x_mm: mm(&|h| h.opening_x),
+        opening_diameter_y_mm: mm(&|h| h.opening_y),
+        opening_area_mm2: hole.map(|h| 1e6 * h.opening_area),
+        effective_depth_mm: mm(&|h| h.effective_depth),
+        feed_depth_mm: 1e3 * d.depth,
+        depth_ratio: hole.map(|h| h.effective_depth / d.depth),
+        backfill_ratio: backfill.filter(|_| report),
+        rim_height_mm: mm(&|h| h.rim_height),
+        auger_diameter_mm: 1e3 * a.outer_diameter,
+        peak_torque_nm: loads.peak_torque,
+        mean_feed_torque_nm: loads.mean_feed_torque,
+        peak_axial_force_n: loads.peak_axial,
+        mean_feed_axial_force_n: loads.mean_feed_axial,
+        rotation_energy_j: loads.rotation_energy,
+        feed_energy_j: loads.feed_energy,
+        energy_j: loads.rotation_energy + loads.feed_energy,
+        series: loads.series,
+        bed: BedInfo {
+            key: bed.key.clone(),
+            particles: bed.positions.len(),
+            settled: bed.settled,
+            reused,
+            surface_z_mm: 1e3 * surface,
+            simulated_time_s: bed.simulated_time_s,
+            wall_time_s: bed.wall_time_s,
+        },
+        grain_diameter_mm: 2e3 * mean_r,
+        particles: world.particles().len(),
+        escaped: world.removed_count(),
+        carried_out,
+        kinetic_energy_ratio: ke,
+        simulated_time_s: world.time(),
+        steps: world.steps(),
+        time_step_s: world.config().time_step,
+        wall_time_s: started.elapsed().as_secs_f64() + if reused { 0.0 } else { bed.wall_time_s },
+    };
+    Ok(DrillRun {
+        result,
+        measurement,
+        surface: surface_field,
+        positions,
+        radii,
+        bed,
+        spec: spec.clone(),
+        world,
+    })
+}
+
+struct Loads {
+    series: Vec<LoadSample>,
+    peak_torque: f64,
+    mean_feed_torque: f64,
+    peak_axial: f64,
+    mean_feed_axial: f64,
+    rotation_energy: f64,
+    feed_energy: f64,
+}
+
+/// The auger's recorded loads (every step): energies integrated step by step, the series
+/// averaged over `measure.series_interval`.
+fn load_series(
+    world: &World,
+    id: GeometryId,
+    motion: &Motion,
+    surface: f64,
+    spec: &DrillSpec,
+) -> Loads {
+    let samples = world.geometry_series(id);
+    let dt = world.config().time_step;
+    let d = &spec.drill;
+    let t_feed = (d.depth + d.start_clearance) / d.feed_speed;
+    // Unit vector of the spin (world frame): the drive torque is the soil's torque against it.
+    let spin = Vec3::new(0.0, 0.0, if d.clockwise { -1.0 } else { 1.0 });
+    let mut out = Loads {
+        series: Vec::new(),
+        peak_torque: 0.0,
+        mean_feed_torque: 0.0,
+        peak_axial: 0.0,
+        mean_feed_axial: 0.0,
+        rotation_energy: 0.0,
+        feed_energy: 0.0,
+    };
+    let mut feed_n = 0usize;
+    let interval = spec.measure.series_interval;
+    let (mut bin_start, mut acc_t, mut acc_f, mut acc_n) = (0.0, 0.0, 0.0, 0usize);
+    for s in samples {
+        let torque = -s.torque.dot(&spin);
+        let axial = s.force.z;
+        let omega = motion.angular_velocity_at(s.time);
+        let v = motion.linear_velocity_at(s.time);
+        // Drive power: -(soil torque)·ω; feed power: -(soil force)·v.
+        out.rotation_energy += -s.torque.dot(&omega) * dt;
+        out.feed_energy += -s.force.dot(&v) * dt;
+        if s.time < t_feed {
+            out.mean_feed_torque += torque;
+            out.mean_feed_axial += axial;
+            feed_n += 1;
+        }
+        if s.time >= bin_start + interval && acc_n > 0 {
+            let mid = bin_start + 0.5 * interval;
+            out.series.push(LoadSample {
+                time_s: mid,
+                tip_depth_mm: 1e3 * (surface - motion.reference_point_at(mid).z),
+                torque_nm: acc_t / acc_n as f64,
+                axial_force_n: acc_f / acc_n as f64,
+            });
+            bin_start += interval * ((s.time - bin_start) / interval).floor();
+            (acc_t, acc_f, acc_n) = (0.0, 0.0, 0);
+        }
+        acc_t += torque;
+        acc_f += axial;
+        acc_n += 1;
+    }
+    if acc_n > 0 {
+        let mid = bin_start + 0.5 * interval;
+        out.series.push(LoadSample {
+            time_s: mid,
+            tip_depth_mm: 1e3 * (surface - motion.reference_point_at(mid).z),
+            torque_nm: acc_t / acc_n as f64,
+            axial_force_n: acc_f / acc_n as f64,
+        });
+    }
+    // Peaks of the interval averages (single steps are dominated by contact noise).
+    for p in &out.series {
+        out.peak_torque = out.peak_torque.max(p.torque_nm);
+        out.peak_axial = out.peak_axial.max(p.axial_force_n);
+    }
+    if feed_n > 0 {
+        out.mean_feed_torque /= feed_n as f64;
+        out.mean_feed_axial /= feed_n as f64;
+    }
+    out
+}

@@ -1,0 +1,187 @@
+//! DrillSpec: presets, dotted-path edits shared with AorSpec, validation naming the field, bed
+//! keys.
+
+use repose_experiments::aor::AorSpec;
+use repose_experiments::drill::{bed_key, DrillSpec, SpecError, PRESETS};
+
+#[test]
+fn presets_validate_and_round_trip_through_json() {
+    for name in PRESETS {
+        let spec = DrillSpec::preset(name).unwrap();
+        spec.validate().unwrap();
+        assert_eq!(
+            DrillSpec::from_json(&spec.to_json()).unwrap(),
+            spec,
+            "{name}"
+        );
+    }
+    let paper = DrillSpec::paper();
+    assert_eq!(paper.auger.outer_diameter, 0.06);
+    assert_eq!(paper.drill.rpm, 400.0);
+    assert!(paper.drill.clockwise);
+    assert_eq!(paper.drill.feed_speed, 0.02);
+    assert_eq!(paper.drill.withdraw_speed, 0.02);
+    assert_eq!(DrillSpec::full_scale().drill.depth, 0.6);
+    assert!(matches!(
+        DrillSpec::preset("huge"),
+        Err(SpecError::Invalid { path, .. }) if path == "preset"
+    ));
+}
+
+#[test]
+fn calibration_factor_paths_are_the_same_as_the_angle_of_repose_test() {
+    let mut aor = AorSpec::paper();
+    let mut drill = DrillSpec::paper();
+    assert_eq!(aor.soil_soil, drill.soil_soil);
+    assert_eq!(aor.soil_steel, drill.soil_steel);
+    assert_eq!(aor.materials, drill.materials);
+    for (path, value) in [
+        ("soil_soil.restitution", "0.5"),
+        ("soil_soil.static_friction", "0.48"),
+        ("soil_soil.rolling_friction", "0.2"),
+        ("soil_steel.restitution", "0.3"),
+        ("soil_steel.static_friction", "0.35"),
+        ("soil_steel.rolling_friction", "0.4"),
+        ("materials.soil.density", "2600"),
+        ("materials.steel.youngs_modulus", "2e11"),
+        ("rolling_model", "epsd"),
+        ("particle.radius", "0.003"),
+    ] {
+        if path != "particle.radius" {
+            aor.set(path, value).unwrap();
+        }
+        let result = drill.set(path, value);
+        if path == "particle.radius" {
+            // The drilling preset's grains are a uniform distribution: no `radius` key.
+            assert!(
+                matches!(result, Err(SpecError::UnknownPath { .. })),
+                "{result:?}"
+            );
+        } else {
+            result.unwrap();
+        }
+    }
+    assert_eq!(aor.soil_soil, drill.soil_soil);
+    assert_eq!(aor.soil_steel, drill.soil_steel);
+    assert_eq!(aor.materials, drill.materials);
+    assert_eq!(aor.rolling_model, drill.rolling_model);
+    drill
+        .set("particle", r#"{"kind":"fixed","radius":0.003}"#)
+        .unwrap();
+    drill.set("particle.radius", "0.0032").unwrap();
+    drill.validate().unwrap();
+}
+
+fn invalid_path(spec: &DrillSpec) -> String {
+    match spec.validate() {
+        Err(SpecError::Invalid { path, reason }) => {
+            let message = spec.validate().unwrap_err().to_string();
+            assert!(message.contains(&path), "{message}");
+            assert!(!reason.is_empty());
+            path
+        }
+        other => panic!("expected an invalid field, got {other:?}"),
+    }
+}
+
+#[test]
+fn validation_errors_name_the_field() {
+    let cases: [(&str, &str, &str); 12] = [
+        ("drill.depth", "-0.1", "drill.depth"),
+        ("drill.rpm", "0", "drill.rpm"),
+        ("drill.feed_speed", "0", "drill.feed_speed"),
+        ("drill.withdraw_speed", "-1", "drill.withdraw_speed"),
+        ("auger.shaft_diameter", "0.07", "auger.shaft_diameter"),
+        ("auger.flight_thickness", "0.07", "auger.flight_thickness"),
+        ("auger.outer_diameter", "0.5", "auger.outer_diameter"),
+        ("bin.size_x", "0", "bin.size_x"),
+        ("bed.depth", "0.5", "bed.depth"),
+        ("bed.packing_fraction", "0.9", "bed.packing_fraction"),
+        ("settle.time_cap", "0", "settle.time_cap"),
+        (
+            "time_step_rayleigh_fraction",
+            "1.5",
+            "time_step_rayleigh_fraction",
+        ),
+    ];
+    for (path, value, named) in cases {
+        let mut spec = DrillSpec::paper();
+        spec.set(path, value).unwrap();
+        assert_eq!(invalid_path(&spec), named, "{path}={value}");
+    }
+    // Too deep for the bed: named as the drill depth.
+    let mut spec = DrillSpec::paper();
+    spec.set("drill.depth", "0.149").unwrap();
+    assert_eq!(invalid_path(&spec), "drill.depth");
+    let mut spec = DrillSpec::fast();
+    spec.set("bed.settle.kinetic_energy_threshold", "0")
+        .unwrap();
+    assert_eq!(invalid_path(&spec), "bed.settle.kinetic_energy_threshold");
+}
+
+#[test]
+fn bad_paths_and_values_are_reported_and_leave_the_spec_unchanged() {
+    let mut spec = DrillSpec::fast();
+    let before = spec.clone();
+    match spec.set("drill.speed", "0.1") {
+        Err(SpecError::UnknownPath { path, key, valid }) => {
+            assert_eq!(path, "drill.speed");
+            assert_eq!(key, "speed");
+            assert!(valid.contains("feed_speed"), "{valid}");
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        spec.set("drill.rpm", "fast"),
+        Err(SpecError::BadValue { .. })
+    ));
+    assert!(matches!(
+        spec.apply_assignments(["drill.rpm"]),
+        Err(SpecError::NotAnAssignment(_))
+    ));
+    assert_eq!(spec, before);
+    spec.apply_assignments(["drill.rpm=300", "bed.seed=7"])
+        .unwrap();
+    assert_eq!(spec.drill.rpm, 300.0);
+    assert_eq!(spec.bed_seed(), 7);
+    let err = DrillSpec::from_json(r#"{"auger": {"diameter": 0.06}}"#).unwrap_err();
+    assert!(matches!(err, SpecError::Parse(_)));
+}
+
+#[test]
+fn the_bed_key_follows_the_bed_inputs_only() {
+    let base = DrillSpec::fast();
+    let key = bed_key(&base);
+    assert!(key.starts_with("bed-v1-"), "{key}");
+    for (path, value) in [
+        ("drill.depth", "0.03"),
+        ("drill.rpm", "600"),
+        ("auger.pitch", "0.03"),
+        ("settle.time_cap", "2"),
+        ("measure.series_interval", "0.1"),
+        ("wall_time_cap", "100"),
+    ] {
+        let mut spec = base.clone();
+        spec.set(path, value).unwrap();
+        assert_eq!(bed_key(&spec), key, "{path} must not change the bed");
+    }
+    for (path, value) in [
+        ("soil_soil.static_friction", "0.5"),
+        ("soil_steel.rolling_friction", "0.3"),
+        ("materials.soil.youngs_modulus", "4e6"),
+        ("bin.size_x", "0.1"),
+        ("bed.depth", "0.07"),
+        ("seed", "2"),
+        ("time_step_rayleigh_fraction", "0.25"),
+    ] {
+        let mut spec = base.clone();
+        spec.set(path, value).unwrap();
+        assert_ne!(bed_key(&spec), key, "{path} must change the bed");
+    }
+    // A fixed bed seed shares one bed across run seeds.
+    let mut a = base.clone();
+    a.apply_assignments(["bed.seed=5", "seed=1"]).unwrap();
+    let mut b = base.clone();
+    b.apply_assignments(["bed.seed=5", "seed=2"]).unwrap();
+    assert_eq!(bed_key(&a), bed_key(&b));
+}
