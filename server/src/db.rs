@@ -25,6 +25,7 @@ use uuid::Uuid;
 
 use crate::auth::TokenRole;
 use crate::error::AppError;
+use crate::metrics::Gauges;
 use crate::submit::PlannedBatch;
 use crate::tokens::TokenInfo;
 
@@ -755,6 +756,47 @@ impl Db {
                 })
             })
             .collect()
+    }
+
+    /// The database-derived gauges of `GET /metrics`; workers count as active when seen
+    /// within `lease`.
+    pub async fn gauges(&self, lease: Duration) -> Result<Gauges, AppError> {
+        let count_by = |sql: &'static str| async move {
+            let rows = sqlx::query(sql).fetch_all(&self.reader).await?;
+            rows.iter()
+                .map(|row| Ok((row.try_get::<String, _>(0)?, row.try_get::<i64, _>(1)?)))
+                .collect::<Result<Vec<_>, AppError>>()
+        };
+        let mut jobs = count_by("SELECT state, COUNT(*) FROM jobs GROUP BY state").await?;
+        let mut batches = count_by("SELECT state, COUNT(*) FROM batches GROUP BY state").await?;
+        // Every state appears, with 0 when empty, so series do not vanish.
+        for (all, found) in [
+            (
+                &["queued", "leased", "completed", "dead", "cancelled"][..],
+                &mut jobs,
+            ),
+            (&["active", "completed", "cancelled"][..], &mut batches),
+        ] {
+            for state in all {
+                if !found.iter().any(|(s, _)| s == state) {
+                    found.push(((*state).to_owned(), 0));
+                }
+            }
+            found.sort();
+        }
+        let workers = sqlx::query(
+            "SELECT COUNT(*) AS registered, COALESCE(SUM(last_seen_at >= ?), 0) AS active
+             FROM workers",
+        )
+        .bind(now_ms() - duration_ms(lease))
+        .fetch_one(&self.reader)
+        .await?;
+        Ok(Gauges {
+            jobs,
+            batches,
+            workers_active: workers.try_get("active")?,
+            workers_registered: workers.try_get("registered")?,
+        })
     }
 
     // -----------------------------------------------------------------------------------------

@@ -28,6 +28,7 @@ mod analysis;
 pub mod auth;
 mod db;
 mod error;
+mod metrics;
 mod routes;
 mod submit;
 pub mod tokens;
@@ -113,6 +114,8 @@ pub struct AppState {
     pub(crate) jobs_available: Arc<Notify>,
     /// Flips to `true` at shutdown so long-polls return instead of holding the server open.
     pub(crate) shutdown: watch::Receiver<bool>,
+    /// Counters served by `GET /metrics`.
+    pub(crate) metrics: Arc<metrics::Metrics>,
     shutdown_sender: Arc<watch::Sender<bool>>,
 }
 
@@ -126,6 +129,7 @@ impl AppState {
             config: Arc::new(config),
             jobs_available: Arc::new(Notify::new()),
             shutdown,
+            metrics: Arc::default(),
             shutdown_sender: Arc::new(shutdown_sender),
         })
     }

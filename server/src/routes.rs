@@ -99,6 +99,7 @@ const fn ep(
 /// Every endpoint of the server.
 pub const ENDPOINTS: &[Endpoint] = &[
     ep(Verb::Get, "/healthz", Access::Public, |m| on(m, health)),
+    ep(Verb::Get, "/metrics", Access::Read, |m| on(m, metrics)),
     ep(Verb::Post, "/v1/batches", Access::User, |m| {
         on(m, create_batch)
     }),
@@ -159,6 +160,10 @@ pub fn app(state: AppState) -> Router {
             AppError::MethodNotAllowed("method not allowed on this endpoint".into())
         })
         .layer(DefaultBodyLimit::max(body_limit))
+        .layer(middleware::from_fn_with_state(
+            state.metrics.clone(),
+            crate::metrics::count_responses,
+        ))
         .with_state(state)
 }
 
@@ -218,6 +223,19 @@ async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError>
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
     }))
+}
+
+/// Prometheus text format; see [`crate::metrics`].
+async fn metrics(State(state): State<AppState>) -> Result<Response, AppError> {
+    let gauges = state.db.gauges(state.config.lease).await?;
+    Ok((
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        state.metrics.render(&gauges),
+    )
+        .into_response())
 }
 
 async fn create_batch(
@@ -459,6 +477,7 @@ async fn claim_job(
         tokio::pin!(notified);
         notified.as_mut().enable();
 
+        let started = std::time::Instant::now();
         let (claimed, finished) = state
             .db
             .claim(
@@ -469,11 +488,13 @@ async fn claim_job(
             .await?;
         analyse_in_background(&state, finished);
         if let Some(job) = claimed {
+            state.metrics.claimed(started.elapsed());
             tracing::debug!(job = %job.job_id, worker = %request.worker_id, "job leased");
             return Ok(Json(job).into_response());
         }
         let now = Instant::now();
         if now >= deadline || *shutdown.borrow() {
+            state.metrics.claim_empty();
             return Ok(StatusCode::NO_CONTENT.into_response());
         }
         let recheck = (now + CLAIM_RECHECK).min(deadline);
@@ -514,6 +535,7 @@ async fn complete_job(
         .db
         .complete(job_id, completion.lease_token, &completion)
         .await?;
+    state.metrics.completed();
     Ok(after_update(&state, job_id, update))
 }
 
@@ -538,6 +560,7 @@ async fn fail_job(
             state.config.retry_backoff,
         )
         .await?;
+    state.metrics.failed();
     tracing::warn!(job = %job_id, error = %failure.error, status = ?update.status, "job failed");
     Ok(after_update(&state, job_id, update))
 }
@@ -549,6 +572,7 @@ async fn release_job(
 ) -> Result<impl IntoResponse, AppError> {
     let job_id = parse_id(&raw_id, "job")?;
     let update = state.db.release(job_id, release.lease_token).await?;
+    state.metrics.released();
     Ok(after_update(&state, job_id, update))
 }
 

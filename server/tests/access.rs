@@ -206,6 +206,7 @@ async fn open_read_lets_anonymous_gets_through_but_not_posts() {
         format!("/v1/batches/{}/runs", batch.id),
         "/v1/workers".to_owned(),
         "/v1/jobs".to_owned(),
+        "/metrics".to_owned(),
     ] {
         let (status, body) = server.get_as(&path, None).await;
         assert_eq!(status, StatusCode::OK, "{path}: {body}");

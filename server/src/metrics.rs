@@ -1,0 +1,254 @@
+//! `GET /metrics`: Prometheus text exposition format (version 0.0.4).
+//!
+//! Counters and the claim-latency histogram live in memory (since the process started); the
+//! gauges (jobs and batches by state, workers seen within one lease period) are read from the
+//! database at scrape time.
+
+use std::fmt::Write as _;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use axum::extract::{Request, State};
+use axum::middleware::Next;
+use axum::response::Response;
+
+/// Upper bounds (seconds) of the claim-latency histogram buckets.
+const CLAIM_BUCKETS: [f64; 12] = [
+    0.000_25, 0.000_5, 0.001, 0.002, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0,
+];
+
+/// In-process counters; shared by all requests.
+#[derive(Debug)]
+pub struct Metrics {
+    started: Instant,
+    claims: AtomicU64,
+    empty_claims: AtomicU64,
+    completions: AtomicU64,
+    failures: AtomicU64,
+    releases: AtomicU64,
+    claim_buckets: [AtomicU64; CLAIM_BUCKETS.len()],
+    claim_count: AtomicU64,
+    claim_sum_ns: AtomicU64,
+    /// Responses by status class: index 0 = 1xx … 4 = 5xx.
+    http: [AtomicU64; 5],
+}
+
+/// Database-derived gauges of one scrape.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Gauges {
+    /// Jobs per database state (`queued`, `leased`, `completed`, `dead`, `cancelled`).
+    pub jobs: Vec<(String, i64)>,
+    /// Batches per state (`active`, `completed`, `cancelled`).
+    pub batches: Vec<(String, i64)>,
+    /// Workers whose last registration, claim or heartbeat is within one lease period.
+    pub workers_active: i64,
+    /// Workers ever registered.
+    pub workers_registered: i64,
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        Metrics {
+            started: Instant::now(),
+            claims: AtomicU64::new(0),
+            empty_claims: AtomicU64::new(0),
+            completions: AtomicU64::new(0),
+            failures: AtomicU64::new(0),
+            releases: AtomicU64::new(0),
+            claim_buckets: Default::default(),
+            claim_count: AtomicU64::new(0),
+            claim_sum_ns: AtomicU64::new(0),
+            http: Default::default(),
+        }
+    }
+}
+
+impl Metrics {
+    /// A job was leased; `latency` is the time the claim transaction took.
+    pub fn claimed(&self, latency: Duration) {
+        self.claims.fetch_add(1, Ordering::Relaxed);
+        let seconds = latency.as_secs_f64();
+        if let Some(bucket) = CLAIM_BUCKETS.iter().position(|&le| seconds <= le) {
+            self.claim_buckets[bucket].fetch_add(1, Ordering::Relaxed);
+        }
+        self.claim_count.fetch_add(1, Ordering::Relaxed);
+        let nanos = u64::try_from(latency.as_nanos()).unwrap_or(u64::MAX);
+        self.claim_sum_ns.fetch_add(nanos, Ordering::Relaxed);
+    }
+
+    /// A claim ended without a job (204).
+    pub fn claim_empty(&self) {
+        self.empty_claims.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A result was stored.
+    pub fn completed(&self) {
+        self.completions.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A failure was recorded.
+    pub fn failed(&self) {
+        self.failures.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A lease was given back.
+    pub fn released(&self) {
+        self.releases.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn responded(&self, status: u16) {
+        let class = usize::from(status / 100).clamp(1, 5) - 1;
+        self.http[class].fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// The exposition text.
+    pub fn render(&self, gauges: &Gauges) -> String {
+        let mut out = String::with_capacity(4096);
+        let load = |counter: &AtomicU64| counter.load(Ordering::Relaxed);
+
+        family(&mut out, "repose_jobs", "gauge", "Jobs by state.");
+        for (state, count) in &gauges.jobs {
+            let _ = writeln!(out, "repose_jobs{{state=\"{state}\"}} {count}");
+        }
+        family(&mut out, "repose_batches", "gauge", "Batches by state.");
+        for (state, count) in &gauges.batches {
+            let _ = writeln!(out, "repose_batches{{state=\"{state}\"}} {count}");
+        }
+        family(
+            &mut out,
+            "repose_workers_active",
+            "gauge",
+            "Workers that registered, claimed or heartbeated within the last lease period.",
+        );
+        let _ = writeln!(out, "repose_workers_active {}", gauges.workers_active);
+        family(
+            &mut out,
+            "repose_workers_registered",
+            "gauge",
+            "Workers ever registered.",
+        );
+        let _ = writeln!(
+            out,
+            "repose_workers_registered {}",
+            gauges.workers_registered
+        );
+
+        for (name, help, counter) in [
+            (
+                "repose_claims_total",
+                "Jobs leased to workers since the server started.",
+                &self.claims,
+            ),
+            (
+                "repose_empty_claims_total",
+                "Claims answered 204 (no job within the wait) since the server started.",
+                &self.empty_claims,
+            ),
+            (
+                "repose_completions_total",
+                "Results stored since the server started.",
+                &self.completions,
+            ),
+            (
+                "repose_failures_total",
+                "Job failures reported since the server started.",
+                &self.failures,
+            ),
+            (
+                "repose_releases_total",
+                "Leases given back by workers since the server started.",
+                &self.releases,
+            ),
+        ] {
+            family(&mut out, name, "counter", help);
+            let _ = writeln!(out, "{name} {}", load(counter));
+        }
+
+        let name = "repose_claim_duration_seconds";
+        family(
+            &mut out,
+            name,
+            "histogram",
+            "Time of the claim transaction of claims that leased a job (long-poll waits excluded).",
+        );
+        let mut cumulative = 0;
+        for (le, bucket) in CLAIM_BUCKETS.iter().zip(&self.claim_buckets) {
+            cumulative += load(bucket);
+            let _ = writeln!(out, "{name}_bucket{{le=\"{le}\"}} {cumulative}");
+        }
+        let count = load(&self.claim_count);
+        let _ = writeln!(out, "{name}_bucket{{le=\"+Inf\"}} {count}");
+        let sum = load(&self.claim_sum_ns) as f64 / 1e9;
+        let _ = writeln!(out, "{name}_sum {sum}");
+        let _ = writeln!(out, "{name}_count {count}");
+
+        family(
+            &mut out,
+            "repose_http_responses_total",
+            "counter",
+            "HTTP responses since the server started, by status class.",
+        );
+        for (class, counter) in ["1xx", "2xx", "3xx", "4xx", "5xx"].iter().zip(&self.http) {
+            let _ = writeln!(
+                out,
+                "repose_http_responses_total{{class=\"{class}\"}} {}",
+                load(counter)
+            );
+        }
+        family(
+            &mut out,
+            "repose_uptime_seconds",
+            "gauge",
+            "Seconds since the server started.",
+        );
+        let _ = writeln!(
+            out,
+            "repose_uptime_seconds {}",
+            self.started.elapsed().as_secs_f64()
+        );
+        out
+    }
+}
+
+fn family(out: &mut String, name: &str, kind: &str, help: &str) {
+    let _ = writeln!(out, "# HELP {name} {help}");
+    let _ = writeln!(out, "# TYPE {name} {kind}");
+}
+
+/// Counts every response by status class (installed outermost, so 401s and 404s count too).
+pub async fn count_responses(
+    State(metrics): State<std::sync::Arc<Metrics>>,
+    request: Request,
+    next: Next,
+) -> Response {
+    let response = next.run(request).await;
+    metrics.responded(response.status().as_u16());
+    response
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_buckets_are_cumulative() {
+        let metrics = Metrics::default();
+        metrics.claimed(Duration::from_micros(100));
+        metrics.claimed(Duration::from_micros(700));
+        metrics.claimed(Duration::from_secs(3));
+        let text = metrics.render(&Gauges::default());
+        assert!(text.contains("repose_claim_duration_seconds_bucket{le=\"0.00025\"} 1\n"));
+        assert!(text.contains("repose_claim_duration_seconds_bucket{le=\"0.001\"} 2\n"));
+        assert!(text.contains("repose_claim_duration_seconds_bucket{le=\"1\"} 2\n"));
+        assert!(text.contains("repose_claim_duration_seconds_bucket{le=\"+Inf\"} 3\n"));
+        assert!(text.contains("repose_claim_duration_seconds_count 3\n"));
+        assert!(text.contains("repose_claims_total 3\n"));
+        let sum: f64 = text
+            .lines()
+            .find_map(|l| l.strip_prefix("repose_claim_duration_seconds_sum "))
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!((sum - 3.0008).abs() < 1e-9, "{sum}");
+    }
+}

@@ -1,0 +1,219 @@
+//! `GET /metrics`: well-formed Prometheus text whose values follow what the server did.
+
+mod common;
+
+use std::collections::{BTreeMap, HashSet};
+
+use common::{batch_request, temp_db, TestServer};
+use reqwest::StatusCode;
+use serde_json::json;
+
+/// One sample line: metric name, labels, value.
+type Sample = (String, BTreeMap<String, String>, f64);
+
+/// Parses the text exposition format line by line, checking that every sample belongs to a
+/// family announced by `# HELP` and `# TYPE` lines before it and that no series repeats.
+fn parse_exposition(text: &str) -> Vec<Sample> {
+    let mut helped = HashSet::new();
+    let mut typed: BTreeMap<String, String> = BTreeMap::new();
+    let mut seen = HashSet::new();
+    let mut samples = Vec::new();
+    let valid_name = |name: &str| {
+        !name.is_empty()
+            && !name.starts_with(|c: char| c.is_ascii_digit())
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == ':')
+    };
+    for line in text.lines() {
+        assert!(!line.is_empty(), "blank line in exposition");
+        if let Some(rest) = line.strip_prefix("# HELP ") {
+            let (name, help) = rest.split_once(' ').expect("HELP has a text");
+            assert!(valid_name(name) && !help.is_empty(), "{line}");
+            assert!(helped.insert(name.to_owned()), "second HELP for {name}");
+            continue;
+        }
+        if let Some(rest) = line.strip_prefix("# TYPE ") {
+            let (name, kind) = rest.split_once(' ').expect("TYPE has a kind");
+            assert!(helped.contains(name), "TYPE before HELP: {line}");
+            assert!(
+                ["counter", "gauge", "histogram", "summary", "untyped"].contains(&kind),
+                "{line}"
+            );
+            assert!(
+                typed.insert(name.to_owned(), kind.to_owned()).is_none(),
+                "{line}"
+            );
+            continue;
+        }
+        assert!(!line.starts_with('#'), "unknown comment {line}");
+        let (series, value) = line.rsplit_once(' ').expect("sample has a value");
+        let value: f64 = match value {
+            "+Inf" => f64::INFINITY,
+            "-Inf" => f64::NEG_INFINITY,
+            other => other
+                .parse()
+                .unwrap_or_else(|_| panic!("bad value in {line}")),
+        };
+        let (name, labels) = match series.split_once('{') {
+            None => (series, BTreeMap::new()),
+            Some((name, rest)) => {
+                let inner = rest.strip_suffix('}').expect("labels end with }");
+                let labels = inner
+                    .split(',')
+                    .map(|pair| {
+                        let (key, quoted) = pair.split_once('=').expect("label is k=\"v\"");
+                        assert!(valid_name(key), "{line}");
+                        let value = quoted
+                            .strip_prefix('"')
+                            .and_then(|v| v.strip_suffix('"'))
+                            .expect("label value quoted");
+                        (key.to_owned(), value.to_owned())
+                    })
+                    .collect();
+                (name, labels)
+            }
+        };
+        assert!(valid_name(name), "{line}");
+        let family = match typed.get(name) {
+            Some(_) => name,
+            None => ["_bucket", "_sum", "_count"]
+                .iter()
+                .find_map(|suffix| name.strip_suffix(suffix))
+                .filter(|base| typed.get(*base).map(String::as_str) == Some("histogram"))
+                .unwrap_or_else(|| panic!("sample of undeclared family: {line}")),
+        };
+        assert!(typed.contains_key(family));
+        assert!(seen.insert(series.to_owned()), "repeated series {series}");
+        samples.push((name.to_owned(), labels, value));
+    }
+    samples
+}
+
+fn value(samples: &[Sample], name: &str, label: Option<(&str, &str)>) -> f64 {
+    samples
+        .iter()
+        .find(|(n, labels, _)| {
+            n == name && label.is_none_or(|(k, v)| labels.get(k).map(String::as_str) == Some(v))
+        })
+        .unwrap_or_else(|| panic!("no sample {name} {label:?}"))
+        .2
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_parse_and_count_what_happened() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 1))
+        .await;
+    let worker = server.register().await;
+    for _ in 0..3 {
+        let job = server.claim(worker, 0.0).await.unwrap();
+        let (status, _) = server.complete(&job).await;
+        assert_eq!(status, StatusCode::OK);
+    }
+    let last = server.claim(worker, 0.0).await.unwrap();
+    let (status, _) = server
+        .post(
+            &format!("/v1/jobs/{}/fail", last.job_id),
+            &json!({"lease_token": last.lease_token, "error": "boom"}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK);
+    let (status, _) = server.get("/v1/no-such-thing").await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    let (status, _) = server.get_as("/metrics", None).await;
+    assert_eq!(status, StatusCode::UNAUTHORIZED, "metrics need a token");
+
+    let response = server
+        .client
+        .get(server.url("/metrics"))
+        .bearer_auth(&server.user_token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), StatusCode::OK);
+    let content_type = response.headers()["content-type"]
+        .to_str()
+        .unwrap()
+        .to_owned();
+    assert!(
+        content_type.starts_with("text/plain; version=0.0.4"),
+        "{content_type}"
+    );
+    let text = response.text().await.unwrap();
+    let samples = parse_exposition(&text);
+
+    assert_eq!(
+        value(&samples, "repose_jobs", Some(("state", "completed"))),
+        3.0
+    );
+    assert_eq!(
+        value(&samples, "repose_jobs", Some(("state", "queued"))),
+        1.0
+    );
+    assert_eq!(
+        value(&samples, "repose_jobs", Some(("state", "leased"))),
+        0.0
+    );
+    assert_eq!(
+        value(&samples, "repose_batches", Some(("state", "active"))),
+        1.0
+    );
+    assert_eq!(
+        value(&samples, "repose_batches", Some(("state", "completed"))),
+        0.0
+    );
+    assert_eq!(value(&samples, "repose_workers_active", None), 1.0);
+    assert_eq!(value(&samples, "repose_claims_total", None), 4.0);
+    assert_eq!(value(&samples, "repose_completions_total", None), 3.0);
+    assert_eq!(value(&samples, "repose_failures_total", None), 1.0);
+    assert_eq!(
+        value(&samples, "repose_claim_duration_seconds_count", None),
+        4.0
+    );
+    assert!(value(&samples, "repose_claim_duration_seconds_sum", None) > 0.0);
+    let buckets: Vec<(f64, f64)> = samples
+        .iter()
+        .filter(|(n, _, _)| n == "repose_claim_duration_seconds_bucket")
+        .map(|(_, labels, v)| {
+            let le = &labels["le"];
+            let bound = if le == "+Inf" {
+                f64::INFINITY
+            } else {
+                le.parse().unwrap()
+            };
+            (bound, *v)
+        })
+        .collect();
+    assert!(buckets
+        .windows(2)
+        .all(|w| w[0].0 < w[1].0 && w[0].1 <= w[1].1));
+    assert_eq!(buckets.last().unwrap(), &(f64::INFINITY, 4.0));
+    // Registration, submission, claims, completions, the failure report: all 2xx.
+    assert!(
+        value(
+            &samples,
+            "repose_http_responses_total",
+            Some(("class", "2xx"))
+        ) >= 10.0
+    );
+    assert_eq!(
+        value(
+            &samples,
+            "repose_http_responses_total",
+            Some(("class", "4xx"))
+        ),
+        2.0
+    );
+    assert_eq!(
+        value(
+            &samples,
+            "repose_http_responses_total",
+            Some(("class", "5xx"))
+        ),
+        0.0
+    );
+    server.stop().await;
+}
