@@ -4,12 +4,15 @@
 mod analyze;
 mod aor_cmd;
 mod bench_cmd;
+mod client;
 mod design_cmd;
 mod levels;
 mod server_cmd;
 mod sim;
 mod table;
 mod token_cmd;
+mod up_cmd;
+mod worker_cmd;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -41,6 +44,27 @@ enum Command {
     Server(server_cmd::ServerArgs),
     /// Create, list and revoke the job server's access tokens (user and worker).
     Token(token_cmd::TokenArgs),
+    /// Lease jobs from a job server and run them until Ctrl-C or SIGTERM.
+    Worker(worker_cmd::WorkerArgs),
+    /// Start a server and local workers on an SQLite file; optionally submit and follow batches.
+    Up(up_cmd::UpArgs),
+    /// Submit a batch file (JSON) to a job server.
+    Submit(client::SubmitArgs),
+    /// List batches, or show one batch's progress.
+    Status(client::StatusArgs),
+    /// Follow a batch with a progress bar and print its analysis when it finishes.
+    Watch(client::WatchArgs),
+}
+
+/// Log lines (tracing) go to stderr; `RUST_LOG` filters them (else `default_filter`).
+pub(crate) fn init_logging(default_filter: &str) {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| default_filter.into()),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
 }
 
 fn main() -> ExitCode {
@@ -53,6 +77,11 @@ fn main() -> ExitCode {
         Command::Server(args) => server_cmd::run(&args),
         Command::Token(args) => token_cmd::run(&args),
         Command::Aor(args) => aor_cmd::run(&args),
+        Command::Worker(args) => worker_cmd::run_worker(&args),
+        Command::Up(args) => up_cmd::run(&args),
+        Command::Submit(args) => client::submit(&args),
+        Command::Status(args) => client::status(&args),
+        Command::Watch(args) => client::watch(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -317,7 +317,7 @@ fn steepest_ascent_path_reproduces_table_5() {
 fn readme_shows_what_the_main_command_prints() {
     let readme = std::fs::read_to_string(common::workspace_root().join("README.md")).unwrap();
     let section = readme
-        .split("## What the first command prints")
+        .split("## What `repose analyze` prints for Table 6")
         .nth(1)
         .expect("README has the section");
     let block = section

@@ -1,6 +1,8 @@
-//! Shared helpers for the black-box tests: build the real `repose` binary once and run it.
+//! Shared helpers for the black-box tests: run the real `repose` binary.
 
 #![allow(dead_code)]
+
+pub mod service;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -1,0 +1,271 @@
+//! `repose up`: the whole service on one machine — a job server on an SQLite file and N local
+//! workers in one process — optionally submitting batch files and following them to their
+//! analysis.
+//!
+//! Shutdown order matters: workers stop first (they release the jobs they hold, so nothing is
+//! half-done in the database), then the server drains and closes the database.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use repose_api::BatchState;
+use repose_server::{serve, Config};
+use repose_worker::WorkerConfig;
+use tokio::sync::watch;
+
+use crate::client::{progress_bar, read_batch_file, UserClient};
+
+#[derive(Debug, Args)]
+pub struct UpArgs {
+    /// Local workers to start (each runs one job at a time).
+    #[arg(long, env = "REPOSE_WORKERS", default_value_t = 2)]
+    pub workers: usize,
+    /// Threads per worker (default: cores / workers, at least 1).
+    #[arg(long, env = "REPOSE_THREADS")]
+    pub threads: Option<usize>,
+    /// SQLite database file (created and migrated if missing).
+    #[arg(long, env = "REPOSE_DB", default_value = "repose.db")]
+    pub db: PathBuf,
+    /// Address to listen on (port 0: any free port).
+    #[arg(long, env = "REPOSE_LISTEN", default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    /// Lease length, seconds.
+    #[arg(long, env = "REPOSE_LEASE_S", default_value_t = 60.0)]
+    pub lease_s: f64,
+    /// Batch file to submit once the service is up (repeatable; followed in order).
+    #[arg(long, value_name = "FILE")]
+    pub submit: Vec<PathBuf>,
+    /// Stop once every submitted batch has finished (default: serve until Ctrl-C).
+    #[arg(long, requires = "submit")]
+    pub exit_when_done: bool,
+    /// Keep each run's pictures under DIR/<run id>/.
+    #[arg(long)]
+    pub artifacts: Option<PathBuf>,
+    /// Write the tokens `repose up` creates here as `export` lines (default: next to the
+    /// database, `<db>.tokens.env`).
+    #[arg(long)]
+    pub tokens_file: Option<PathBuf>,
+}
+
+/// Validated settings.
+#[derive(Debug)]
+struct UpConfig {
+    server: Config,
+    workers: usize,
+    threads: usize,
+    submit: Vec<(PathBuf, serde_json::Value)>,
+    exit_when_done: bool,
+    artifacts: Option<PathBuf>,
+    tokens_file: PathBuf,
+}
+
+fn config(args: &UpArgs) -> Result<UpConfig> {
+    if args.workers == 0 {
+        bail!("--workers must be at least 1");
+    }
+    if !(args.lease_s.is_finite() && args.lease_s >= 1.0) {
+        bail!("--lease-s must be at least 1 second, got {}", args.lease_s);
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = match args.threads {
+        Some(0) => bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => (cores / args.workers).max(1),
+    };
+    // Read every batch file before starting anything, so a typo fails fast.
+    let submit = args
+        .submit
+        .iter()
+        .map(|path| Ok((path.clone(), read_batch_file(path)?)))
+        .collect::<Result<Vec<_>>>()?;
+    let mut server = Config::new(args.db.clone());
+    server.listen = args.listen;
+    server.lease = Duration::from_secs_f64(args.lease_s);
+    let tokens_file = args.tokens_file.clone().unwrap_or_else(|| {
+        let mut name = args.db.as_os_str().to_owned();
+        name.push(".tokens.env");
+        PathBuf::from(name)
+    });
+    Ok(UpConfig {
+        server,
+        workers: args.workers,
+        threads,
+        submit,
+        exit_when_done: args.exit_when_done,
+        artifacts: args.artifacts.clone(),
+        tokens_file,
+    })
+}
+
+pub fn run(args: &UpArgs) -> Result<()> {
+    let config = config(args)?;
+    // Warnings only by default: the progress bar and the analysis are the output here.
+    crate::init_logging("warn");
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    runtime.block_on(up(config))
+}
+
+async fn up(config: UpConfig) -> Result<()> {
+    let listener = tokio::net::TcpListener::bind(config.server.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", config.server.listen))?;
+    let address = listener.local_addr()?;
+    let url = format!("http://{address}");
+    let tokens = local_tokens(&config.server.db_path, &config.tokens_file, &url)
+        .await
+        .context("cannot create the local tokens")?;
+
+    let (stop_server, server_stopped) = watch::channel(false);
+    let server = tokio::spawn(serve(config.server.clone(), listener, async move {
+        let mut stopped = server_stopped;
+        let _ = stopped.wait_for(|s| *s).await;
+    }));
+
+    let (stop_workers, workers_stopped) = watch::channel(false);
+    let mut workers = Vec::with_capacity(config.workers);
+    for _ in 0..config.workers {
+        let mut worker = WorkerConfig::new(url.clone());
+        worker.token = Some(tokens.worker.clone());
+        worker.threads = config.threads;
+        worker.artifacts_dir = config.artifacts.clone();
+        let mut stopped = workers_stopped.clone();
+        workers.push(tokio::spawn(repose_worker::run(worker, async move {
+            let _ = stopped.wait_for(|s| *s).await;
+        })));
+    }
+    // stdout: where things are, in a form a shell can use.
+    println!("repose up: server {url}, database {}", config.server.db_path.display());
+    println!(
+        "  {} workers × {} threads; tokens in {} (source it for curl and repose submit/status)",
+        config.workers,
+        config.threads,
+        config.tokens_file.display()
+    );
+    println!("  export REPOSE_SERVER={url}");
+    println!("  export REPOSE_TOKEN={}", tokens.user);
+
+    let client = UserClient::new(&url, Some(tokens.user.clone()))?;
+    let (outcome, interrupted) = tokio::select! {
+        outcome = follow_submissions(&client, &config) => (outcome, false),
+        () = crate::server_cmd::shutdown_signal() => (Ok(()), true),
+    };
+    if outcome.is_ok() && !interrupted && !config.exit_when_done {
+        if !config.submit.is_empty() {
+            println!("still serving at {url}; Ctrl-C to stop");
+        }
+        crate::server_cmd::shutdown_signal().await;
+    }
+
+    eprintln!("stopping workers (running jobs are released) …");
+    stop_workers.send_replace(true);
+    for worker in workers {
+        match worker.await {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => eprintln!("a worker stopped with an error: {e}"),
+            Err(e) => eprintln!("a worker task failed: {e}"),
+        }
+    }
+    stop_server.send_replace(true);
+    server
+        .await
+        .context("server task failed")?
+        .context("server failed")?;
+    outcome
+}
+
+/// Submits the batch files in order, follows each to its end and prints its analysis.
+async fn follow_submissions(client: &UserClient, config: &UpConfig) -> Result<()> {
+    let mut ids = Vec::new();
+    for (path, batch) in &config.submit {
+        let created = client
+            .submit(batch)
+            .await
+            .with_context(|| format!("submitting {}", path.display()))?;
+        println!(
+            "submitted {} as batch {} ({} runs)",
+            path.display(),
+            created.id,
+            created.run_count
+        );
+        ids.push(created.id);
+    }
+    let mut failed = Vec::new();
+    for id in ids {
+        let bar = progress_bar(false);
+        let (status, analysis) = client.watch(id, Duration::from_millis(500), &bar).await?;
+        let counts = status.summary.counts;
+        println!(
+            "batch {id} ({}) {:?}: {} completed, {} dead",
+            status.summary.name, status.summary.state, counts.completed, counts.dead
+        );
+        if let Some(text) = analysis {
+            println!("{text}");
+        }
+        if status.summary.state != BatchState::Completed || counts.dead > 0 {
+            failed.push(id);
+        }
+    }
+    if !failed.is_empty() && config.exit_when_done {
+        bail!(
+            "{} batch(es) did not complete every run: {}",
+            failed.len(),
+            failed
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// The tokens `repose up` hands to its workers and prints for the person at the keyboard.
+#[derive(Debug)]
+struct LocalTokens {
+    user: String,
+    worker: String,
+}
+
+/// Creates a fresh user and worker token in the database and writes them to `file` as
+/// `export` lines (owner-only permissions), so `source FILE` makes the README's curl examples
+/// work. Each start makes new tokens (names carry the time) and the old ones stay valid.
+async fn local_tokens(
+    db: &std::path::Path,
+    file: &std::path::Path,
+    url: &str,
+) -> Result<LocalTokens> {
+    use repose_server::tokens::create_token;
+    use repose_server::TokenRole;
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis());
+    let user = create_token(db, &format!("local-user-{stamp}"), TokenRole::User).await?;
+    let worker = create_token(db, &format!("local-worker-{stamp}"), TokenRole::Worker).await?;
+    let text = format!(
+        "# written by `repose up`; `source` this file to use the API from a shell\n\
+         export REPOSE_SERVER={url}\nexport REPOSE_TOKEN={user}\nexport REPOSE_WORKER_TOKEN={worker}\n"
+    );
+    write_private(file, &text).with_context(|| format!("cannot write {}", file.display()))?;
+    Ok(LocalTokens { user, worker })
+}
+
+#[cfg(unix)]
+fn write_private(path: &std::path::Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut file = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .mode(0o600)
+        .open(path)?;
+    file.write_all(text.as_bytes())
+}
+
+#[cfg(not(unix))]
+fn write_private(path: &std::path::Path, text: &str) -> std::io::Result<()> {
+    std::fs::write(path, text)
+}

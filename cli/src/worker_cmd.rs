@@ -1,0 +1,59 @@
+//! `repose worker`: leases jobs from a job server and runs them until Ctrl-C or SIGTERM.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use repose_worker::{run, WorkerConfig};
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub struct WorkerArgs {
+    /// Job server URL.
+    #[arg(long, env = "REPOSE_SERVER", default_value = "http://127.0.0.1:8080")]
+    pub server: String,
+    /// Worker token (`repose token create NAME --role worker`).
+    #[arg(long, env = "REPOSE_WORKER_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Jobs run at the same time.
+    #[arg(long, env = "REPOSE_SLOTS", default_value_t = 1)]
+    pub slots: usize,
+    /// Threads per job (default: all cores divided among the slots). Results do not depend on it.
+    #[arg(long, env = "REPOSE_THREADS")]
+    pub threads: Option<usize>,
+    /// Keep each run's pictures (e.g. pile.svg) under DIR/<run id>/.
+    #[arg(long, env = "REPOSE_ARTIFACTS")]
+    pub artifacts: Option<PathBuf>,
+}
+
+/// The validated worker configuration.
+pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
+    if args.slots == 0 {
+        bail!("--slots must be at least 1");
+    }
+    if !(args.server.starts_with("http://") || args.server.starts_with("https://")) {
+        bail!("--server must be an http:// or https:// URL, got {:?}", args.server);
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = match args.threads {
+        Some(0) => bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => (cores / args.slots).max(1),
+    };
+    let mut config = WorkerConfig::new(args.server.clone());
+    config.token = args.token.clone();
+    config.slots = args.slots;
+    config.threads = threads;
+    config.artifacts_dir = args.artifacts.clone();
+    Ok(config)
+}
+
+pub fn run_worker(args: &WorkerArgs) -> Result<()> {
+    let config = config(args)?;
+    crate::init_logging("info");
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    runtime.block_on(async move {
+        run(config, crate::server_cmd::shutdown_signal())
+            .await
+            .context("worker failed")
+    })?;
+    Ok(())
+}

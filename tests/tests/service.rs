@@ -1,0 +1,232 @@
+//! The job service end to end with real processes: `repose server` on a temp SQLite file,
+//! `repose worker` processes, batches submitted over HTTP; workers and the server killed with
+//! SIGKILL mid-batch.
+
+mod common;
+
+use std::time::Duration;
+
+use common::service::Service;
+use serde_json::{json, Value};
+
+/// A four-run angle-of-repose batch small enough for CI (≈ 1 150 grains a run, a few seconds
+/// each): static and rolling soil-soil friction on a 2² factorial.
+fn small_aor_batch() -> Value {
+    json!({
+        "name": "two-worker AOR",
+        "experiment": {"kind": "aor", "preset": "fast", "spec": {"total_mass": 0.025}},
+        "factors": [
+            {"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.4, "high": 0.6},
+            {"name": "mu_r", "path": "soil_soil.rolling_friction", "low": 0.2, "high": 0.4}
+        ],
+        "design": {"type": "factorial"},
+        "response": "angle_deg",
+        "model": "linear",
+        "seed": 5
+    })
+}
+
+/// A replay batch (`table_lookup`, the test aid) whose runs each hold their worker `hold_s`.
+fn replay_batch(points: usize, hold_s: f64) -> Value {
+    let rows: Vec<Value> = (0..points)
+        .map(|i| json!({"x": i as f64, "y": 10.0 + 2.0 * i as f64}))
+        .collect();
+    let design: Vec<Value> = (0..points).map(|i| json!([i as f64])).collect();
+    json!({
+        "name": "replay",
+        "experiment": {"kind": "table_lookup", "spec": {"values": {"x": 0.0}, "rows": rows, "hold_s": hold_s}},
+        "factors": [{"name": "x", "path": "values.x", "low": 0.0, "high": (points - 1) as f64}],
+        "design": {"type": "explicit", "points": design},
+        "response": "y",
+        "model": if points >= 3 { "linear" } else { "none" },
+        "seed": 9
+    })
+}
+
+fn runs(service: &Service, batch: &str) -> Vec<Value> {
+    service
+        .get(&format!("/v1/batches/{batch}/runs"))
+        .as_array()
+        .unwrap()
+        .clone()
+}
+
+#[test]
+fn a_batch_runs_through_two_worker_processes_and_is_analysed() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 30.0);
+    let _a = service.start_worker("worker-a", &[]);
+    let _b = service.start_worker("worker-b", &[]);
+    let batch = service.submit(&small_aor_batch());
+    let status = service.wait_finished(&batch, Duration::from_secs(600));
+    assert_eq!(status["state"], "completed", "{status}");
+
+    let runs = runs(&service, &batch);
+    assert_eq!(runs.len(), 4);
+    let mut workers: Vec<&str> = runs
+        .iter()
+        .filter_map(|r| r["worker_id"].as_str())
+        .collect();
+    workers.sort_unstable();
+    workers.dedup();
+    assert_eq!(workers.len(), 2, "both workers ran jobs: {runs:?}");
+    let angles: Vec<f64> = runs
+        .iter()
+        .filter_map(|r| r["metrics"]["angle_deg"].as_f64())
+        .collect();
+    assert!(angles.len() >= 3, "at least three heaps measured: {runs:?}");
+    assert!(angles.iter().all(|a| (5.0..60.0).contains(a)), "{angles:?}");
+
+    let analysis = service.get(&format!("/v1/batches/{batch}/analysis"));
+    assert_eq!(analysis["runs_used"].as_u64().unwrap() as usize, angles.len());
+    assert!(analysis["fit"].is_object(), "{analysis}");
+}
+
+#[test]
+fn a_worker_killed_mid_job_is_re_leased_and_the_run_has_exactly_one_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 2.0);
+    let batch = service.submit(&replay_batch(2, 3.0));
+    let mut doomed = service.start_worker("doomed", &[]);
+    service.wait_for(&batch, Duration::from_secs(60), |s| {
+        s["counts"]["running"].as_u64() == Some(1)
+    });
+    doomed.kill();
+
+    let _survivor = service.start_worker("survivor", &[]);
+    let status = service.wait_finished(&batch, Duration::from_secs(120));
+    assert_eq!(status["state"], "completed", "{status}");
+    assert_eq!(status["counts"]["completed"], 2, "{status}");
+    let runs = runs(&service, &batch);
+    let re_leased: Vec<&Value> = runs
+        .iter()
+        .filter(|r| r["attempts"].as_u64() == Some(2))
+        .collect();
+    assert_eq!(re_leased.len(), 1, "the killed worker's job was leased again: {runs:?}");
+    for run in &runs {
+        assert_eq!(run["status"], "completed");
+        let x = run["factors"][0]["natural"].as_f64().unwrap();
+        assert_eq!(run["metrics"]["y"].as_f64(), Some(10.0 + 2.0 * x), "{run}");
+    }
+}
+
+#[test]
+fn the_server_killed_mid_batch_restarts_and_nothing_is_lost() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut service = Service::start(dir.path(), 5.0);
+    let batch = service.submit(&replay_batch(12, 0.4));
+    let _a = service.start_worker("worker-a", &[]);
+    let _b = service.start_worker("worker-b", &[]);
+    service.wait_for(&batch, Duration::from_secs(60), |s| {
+        s["counts"]["completed"].as_u64().unwrap_or(0) >= 3
+    });
+    service.kill_and_restart(5.0);
+
+    let status = service.wait_finished(&batch, Duration::from_secs(180));
+    assert_eq!(status["state"], "completed", "{status}");
+    let runs = runs(&service, &batch);
+    assert_eq!(runs.len(), 12);
+    for run in &runs {
+        assert_eq!(run["status"], "completed", "{run}");
+        let x = run["factors"][0]["natural"].as_f64().unwrap();
+        assert_eq!(run["metrics"]["y"].as_f64(), Some(10.0 + 2.0 * x), "{run}");
+    }
+    let analysis = service.get(&format!("/v1/batches/{batch}/analysis"));
+    assert_eq!(analysis["runs_used"], 12);
+}
+
+#[test]
+fn sigterm_releases_the_running_job_without_counting_an_attempt() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 30.0);
+    let batch = service.submit(&replay_batch(2, 30.0));
+    let mut worker = service.start_worker("stopping", &[]);
+    service.wait_for(&batch, Duration::from_secs(60), |s| {
+        s["counts"]["running"].as_u64() == Some(1)
+    });
+    let exit = worker.terminate(Duration::from_secs(20));
+    assert!(
+        exit.is_some_and(|s| s.success()),
+        "worker exits cleanly on SIGTERM: {exit:?}\n{}",
+        worker.log_text()
+    );
+    let status = service.get(&format!("/v1/batches/{batch}"));
+    assert_eq!(status["counts"]["queued"], 2, "job released at once: {status}");
+    let runs = runs(&service, &batch);
+    assert!(runs.iter().all(|r| r["attempts"] == 0), "release is not an attempt: {runs:?}");
+}
+
+#[test]
+fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
+    let dir = tempfile::tempdir().unwrap();
+    let batch_file = dir.path().join("replay.json");
+    std::fs::write(&batch_file, replay_batch(4, 0.0).to_string()).unwrap();
+    let db = dir.path().join("up.db");
+    let out = std::process::Command::new(common::repose_bin())
+        .args(["up", "--workers", "2", "--listen", "127.0.0.1:0", "--exit-when-done"])
+        .arg("--db")
+        .arg(&db)
+        .arg("--submit")
+        .arg(&batch_file)
+        .output()
+        .unwrap();
+    let stdout = common::stdout(&out);
+    assert!(out.status.success(), "{stdout}\n{}", common::stderr(&out));
+    assert!(stdout.contains("Completed: 4 completed, 0 dead"), "{stdout}");
+    assert!(stdout.contains("ANOVA"), "the analysis is printed: {stdout}");
+    let tokens = std::fs::read_to_string(dir.path().join("up.db.tokens.env")).unwrap();
+    assert!(tokens.contains("export REPOSE_TOKEN=rp_user_"), "{tokens}");
+    assert!(tokens.contains("export REPOSE_WORKER_TOKEN=rp_worker_"), "{tokens}");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(dir.path().join("up.db.tokens.env"))
+            .unwrap()
+            .permissions()
+            .mode();
+        assert_eq!(mode & 0o077, 0, "tokens file is private: {mode:o}");
+    }
+}
+
+#[test]
+fn submit_status_and_watch_talk_to_the_server() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 30.0);
+    let batch_file = dir.path().join("replay.json");
+    std::fs::write(&batch_file, replay_batch(3, 0.0).to_string()).unwrap();
+    let cli = |args: &[&str]| {
+        std::process::Command::new(common::repose_bin())
+            .args(args)
+            .env("REPOSE_SERVER", &service.url)
+            .env("REPOSE_TOKEN", &service.user_token)
+            .output()
+            .unwrap()
+    };
+    let submitted = cli(&["submit", batch_file.to_str().unwrap()]);
+    assert!(submitted.status.success(), "{}", common::stderr(&submitted));
+    let id = common::stdout(&submitted)
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_owned();
+    let listed = cli(&["status"]);
+    assert!(common::stdout(&listed).contains(&id), "{}", common::stdout(&listed));
+    let _worker = service.start_worker("worker", &[]);
+    let watched = cli(&["watch", &id, "--interval-s", "0.2"]);
+    assert!(watched.status.success(), "{}", common::stderr(&watched));
+    assert!(common::stdout(&watched).contains("Coefficients"), "{}", common::stdout(&watched));
+
+    // A bad batch file is one line naming the field, exit status 2.
+    std::fs::write(&batch_file, r#"{"name": "x"}"#).unwrap();
+    let refused = cli(&["submit", batch_file.to_str().unwrap()]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(common::stderr(&refused).contains("422"), "{}", common::stderr(&refused));
+    // Without a token the server says 401.
+    let anonymous = std::process::Command::new(common::repose_bin())
+        .args(["status", "--server", &service.url])
+        .env_remove("REPOSE_TOKEN")
+        .output()
+        .unwrap();
+    assert_eq!(anonymous.status.code(), Some(2));
+    assert!(common::stderr(&anonymous).contains("401"), "{}", common::stderr(&anonymous));
+}
