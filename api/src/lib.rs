@@ -13,6 +13,11 @@ pub mod spec_path;
 
 pub use spec_path::{apply_factor_values, SpecPathError};
 
+/// The OpenAPI 3.0 document of the server's HTTP API (`api/openapi.json`, served at
+/// `GET /openapi.json`). Hand-written; the server's tests compare it with its route table and
+/// with real responses.
+pub const OPENAPI_JSON: &str = include_str!("../openapi.json");
+
 // ---------------------------------------------------------------------------------------------
 // Submissions
 // ---------------------------------------------------------------------------------------------

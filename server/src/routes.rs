@@ -99,6 +99,9 @@ const fn ep(
 /// Every endpoint of the server.
 pub const ENDPOINTS: &[Endpoint] = &[
     ep(Verb::Get, "/healthz", Access::Public, |m| on(m, health)),
+    ep(Verb::Get, "/openapi.json", Access::Public, |m| {
+        on(m, openapi)
+    }),
     ep(Verb::Get, "/metrics", Access::Read, |m| on(m, metrics)),
     ep(Verb::Post, "/v1/batches", Access::User, |m| {
         on(m, create_batch)
@@ -223,6 +226,15 @@ async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError>
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
     }))
+}
+
+/// The API description (`api/openapi.json`).
+async fn openapi() -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        repose_api::OPENAPI_JSON,
+    )
+        .into_response()
 }
 
 /// Prometheus text format; see [`crate::metrics`].
