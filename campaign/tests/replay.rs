@@ -262,12 +262,93 @@ fn paper_replay_reproduces_the_papers_decisions() {
         json["stages"]["screening"]["carried"],
         json!(["N2", "N3", "N5"])
     );
-    let html = report_html(&campaign, &results, &ReportPictures::default());
+}
+
+#[test]
+fn the_report_renders_with_anova_optimum_and_well_formed_svg() {
+    let (campaign, results) = run_paper_campaign();
+    let pile = r##"<svg xmlns="http://www.w3.org/2000/svg" width="120" height="60"><polygon points="0,60 60,18 120,60" fill="#c8a96e"/><text x="4" y="12" font-size="10">test pile</text></svg>"##;
+    let html = report_html(
+        &campaign,
+        &results,
+        &ReportPictures {
+            verification_pile: Some(pile.to_owned()),
+            drilled_hole: None,
+        },
+    );
     std::fs::write(
         std::env::temp_dir().join("repose-campaign-replay.html"),
         &html,
     )
     .unwrap();
+    assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
+    assert!(!html.contains("<script"), "no scripts");
+    assert!(!html.contains("src=\"http"), "no external assets");
+    for needle in [
+        "Lack of Fit",
+        "Pure Error",
+        "Pareto chart of standardized effects",
+        "Steepest path: response per step",
+        "Normal probability plot",
+        "Residuals vs predicted",
+        "Predicted vs actual",
+        "Provenance of every run",
+        "data:image/svg+xml;base64,",
+        "within tolerance",
+    ] {
+        assert!(html.contains(needle), "report lacks {needle:?}");
+    }
+    // The chosen optimum appears in the report.
+    let opt = campaign.surfaces[0].optimum.as_ref().unwrap();
+    assert!(html.contains("<b>chosen</b>"));
+    for v in &opt.natural {
+        assert!(html.contains(&fmt4(*v)), "optimum value {v} missing");
+    }
+    // Every inline SVG parses as XML; 3 contour plots (one per pair of N2, N3, N5).
+    let mut svgs = 0;
+    let mut contours = 0;
+    let mut rest = html.as_str();
+    while let Some(start) = rest.find("<svg") {
+        let end = rest[start..].find("</svg>").unwrap() + start + 6;
+        let doc = &rest[start..end];
+        roxmltree::Document::parse(doc).unwrap_or_else(|e| panic!("bad SVG: {e}\n{doc:.300}"));
+        svgs += 1;
+        if doc.contains(" over N") {
+            contours += 1;
+        }
+        rest = &rest[end..];
+    }
+    assert_eq!(contours, 3);
+    assert!(svgs >= 3 + 3 + 2, "{svgs} SVGs");
+    // The page as a whole parses as XML once the doctype is dropped (tags closed, attributes
+    // quoted): a lenient well-formedness check.
+    let body = html
+        .trim_start_matches("<!DOCTYPE html>")
+        .replace("<meta charset=\"utf-8\">", "");
+    roxmltree::Document::parse(&body).expect("well-formed page");
+
+    let json = report_json(&campaign, &results);
+    assert_eq!(
+        json["stages"]["screening"]["carried"],
+        json!(["N2", "N3", "N5"])
+    );
+    assert!(json["stages"]["screening"]["fit"]["anova"].is_array());
+    assert!(json["stages"]["response_surfaces"][0]["fit_full"]["anova"].is_array());
+    let provenance = json["provenance"].as_array().unwrap();
+    assert_eq!(
+        provenance.len(),
+        results.iter().map(|r| r.runs.len()).sum::<usize>()
+    );
+    assert!(provenance
+        .iter()
+        .all(|p| p["spec_sha256"].as_str().unwrap().len() == 16));
+}
+
+/// The report's number format (4 significant digits, trailing zeros trimmed).
+fn fmt4(v: f64) -> String {
+    let digits = (3 - v.abs().log10().floor() as i32).clamp(0, 6) as usize;
+    let s = format!("{v:.digits$}");
+    s.trim_end_matches('0').trim_end_matches('.').to_owned()
 }
 
 /// The campaign's response-surface fit, recomputed from the runs the way the report does.
