@@ -417,13 +417,16 @@ pub struct Campaign {
     pub summary: Option<Summary>,
 }
 
-/// Completed runs as (natural values of `names`, response).
+/// Natural factor values, responses and design rows of the completed runs.
+pub(crate) type Observations = (Vec<Vec<f64>>, Vec<f64>, Vec<u32>);
+
+/// Completed runs as (natural values of `names`, response, design row).
 pub(crate) fn observations(
     batch: usize,
     runs: &[RunView],
     names: &[String],
     response: &str,
-) -> Result<(Vec<Vec<f64>>, Vec<f64>, Vec<u32>), CampaignError> {
+) -> Result<Observations, CampaignError> {
     let mut x = Vec::new();
     let mut y = Vec::new();
     let mut rows = Vec::new();
@@ -1381,7 +1384,7 @@ impl Campaign {
         let (design, region, label) = match (&design_setting, k) {
             (_, 1) => {
                 let mut coded = vec![-1.0, -0.5, 0.5, 1.0];
-                coded.extend(std::iter::repeat(0.0).take(centre_points.max(1)));
+                coded.extend(std::iter::repeat_n(0.0, centre_points.max(1)));
                 let points = coded.iter().map(|c| natural(&factors, &[*c])).collect();
                 (
                     DesignRequest::Explicit { points },
