@@ -40,6 +40,18 @@ pub struct BedProgress {
     pub kinetic_energy_ratio: f64,
 }
 
+/// What ended a settling phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SettledBy {
+    /// Mean kinetic energy per grain below the threshold.
+    KineticEnergy,
+    /// The measured shape stayed within the tolerance over the window.
+    Stable,
+    /// Neither within the time cap (not at rest).
+    TimeCap,
+}
+
 /// A settled bed: the grains (bit-exact through serde: floats are stored as their IEEE bits,
 /// so a stored bed gives the same run as a fresh one) and how it was made.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -56,8 +68,9 @@ pub struct SettledBed {
     pub radii: Vec<f64>,
     /// Median surface height (probe height field, away from the walls), m above the floor.
     pub surface_z: f64,
-    /// Whether the kinetic-energy criterion was met (else the time cap ended the build).
+    /// Whether a settle criterion was met (else the time cap ended the build).
     pub settled: bool,
+    pub settled_by: SettledBy,
     pub kinetic_energy_ratio: f64,
     pub simulated_time_s: f64,
     pub steps: u64,
@@ -246,6 +259,36 @@ pub(crate) fn kinetic_energy_ratio(world: &World) -> f64 {
     p.kinetic_energy() / n / (mean_mass * 9.81 * mean_d)
 }
 
+/// True if the last `window` values lie within `tolerance_diameters × d` of each other.
+pub(crate) fn is_stable(values: &[f64], settle: &super::spec::SettleSpec, d: f64) -> bool {
+    let window = settle.stable_window;
+    if values.len() < window {
+        return false;
+    }
+    let recent = &values[values.len() - window..];
+    let lo = recent.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = recent.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    hi - lo <= settle.stable_tolerance_diameters * d
+}
+
+/// The bed's surface level: median of the probe height field away from the walls.
+fn bed_surface(spec: &DrillSpec, world: &World, mean_r: f64) -> Result<f64, DrillError> {
+    let p = world.particles();
+    let positions: Vec<[f64; 3]> = p.position.iter().map(|v| [v.x, v.y, v.z]).collect();
+    let m = &spec.measure;
+    let hf = height_field(
+        &positions,
+        &p.radius,
+        0.5 * spec.bin.size_x,
+        0.5 * spec.bin.size_y,
+        m.cell_fraction * mean_r,
+        m.probe_fraction * mean_r,
+        0.0,
+    )
+    .map_err(|e| build_error("bed surface", e))?;
+    Ok(surface_level(&hf, m.wall_margin_diameters * 2.0 * mean_r))
+}
+
 /// Builds and settles the bed of `spec`. `progress` may cancel ([`DrillError::Cancelled`]).
 pub fn build_bed(
     spec: &DrillSpec,
@@ -309,18 +352,25 @@ pub fn build_bed(
     let deadline = fall + settle.time_cap;
     let mut next_check = first_check;
     let mut ke = f64::INFINITY;
-    let mut settled = false;
+    let mut settled_by = SettledBy::TimeCap;
+    let mut levels: Vec<f64> = Vec::new();
+    let mean_r = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
     loop {
         world.step();
         let t = world.time();
-        if world.steps() % 200 == 0 || t >= next_check {
-            if t >= next_check {
-                next_check += settle.check_interval;
-                ke = kinetic_energy_ratio(&world);
-                if ke < settle.kinetic_energy_threshold {
-                    settled = true;
-                }
+        let is_check = t >= next_check;
+        if is_check {
+            next_check += settle.check_interval;
+            ke = kinetic_energy_ratio(&world);
+            levels.push(bed_surface(spec, &world, mean_r)?);
+            if ke < settle.kinetic_energy_threshold {
+                settled_by = SettledBy::KineticEnergy;
+            } else if is_stable(&levels, settle, 2.0 * mean_r) {
+                settled_by = SettledBy::Stable;
             }
+        }
+        let settled = settled_by != SettledBy::TimeCap;
+        if world.steps() % 200 == 0 || is_check {
             let control = progress(BedProgress {
                 fraction: if settled {
                     1.0
@@ -350,28 +400,16 @@ pub fn build_bed(
 
     let p = world.particles();
     let v3 = |v: &Vec3| [v.x, v.y, v.z];
-    let positions: Vec<[f64; 3]> = p.position.iter().map(v3).collect();
-    let mean_r = p.radius.iter().sum::<f64>() / p.len().max(1) as f64;
-    let m = &spec.measure;
-    let hf = height_field(
-        &positions,
-        &p.radius,
-        0.5 * spec.bin.size_x,
-        0.5 * spec.bin.size_y,
-        m.cell_fraction * mean_r,
-        m.probe_fraction * mean_r,
-        0.0,
-    )
-    .map_err(|e| build_error("bed surface", e))?;
-    let surface_z = surface_level(&hf, m.wall_margin_diameters * 2.0 * mean_r);
+    let surface_z = bed_surface(spec, &world, mean_r)?;
     Ok(SettledBed {
         key: bed_key(spec),
-        positions,
+        positions: p.position.iter().map(v3).collect(),
         velocities: p.velocity.iter().map(v3).collect(),
         angular_velocities: p.angular_velocity.iter().map(v3).collect(),
         radii: p.radius.clone(),
         surface_z,
-        settled,
+        settled: settled_by != SettledBy::TimeCap,
+        settled_by,
         kinetic_energy_ratio: ke,
         simulated_time_s: world.time(),
         steps: world.steps(),

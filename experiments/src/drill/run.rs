@@ -15,7 +15,8 @@ use repose_engine::world::{Geometry, GeometryId, World};
 use serde::{Deserialize, Serialize};
 
 use super::bed::{
-    bed_key, bin_world, build_bed, kinetic_energy_ratio, setup, SettledBed, SplitMix,
+    bed_key, bin_world, build_bed, is_stable, kinetic_energy_ratio, setup, SettledBed, SettledBy,
+    SplitMix,
 };
 use super::measure::{
     height_field, measure_hole, solid_volume_in_cylinder, HeightField, HoleMeasurement,
@@ -149,6 +150,8 @@ pub struct DrillResult {
     /// Grains still on the lifted auger at the end (carried out; not measured).
     pub carried_out: usize,
     pub kinetic_energy_ratio: f64,
+    /// What ended the settling after withdrawal.
+    pub settled_by: SettledBy,
     /// Simulated time of the drilling run (after the bed), s.
     pub simulated_time_s: f64,
     pub steps: u64,
@@ -385,13 +388,15 @@ fn drill(
         .map_err(|e| build_error("auger", e))?;
 
     // Run: the motion, then settling checks.
+    let mean_r = bed.radii.iter().sum::<f64>() / bed.radii.len().max(1) as f64;
     let settle = &spec.settle;
     let first_check = t_lift + settle.min_time;
     let deadline = t_lift + settle.time_cap;
     let nominal_end = first_check;
     let mut next_check = first_check;
     let mut ke = f64::INFINITY;
-    let mut came_to_rest = false;
+    let mut settled_by = SettledBy::TimeCap;
+    let (mut depths, mut openings) = (Vec::new(), Vec::new());
     let mut stopped: Option<DrillStatus> = None;
     loop {
         world.step();
@@ -400,8 +405,22 @@ fn drill(
         if is_check {
             next_check += settle.check_interval;
             ke = kinetic_energy_ratio(&world);
-            came_to_rest = ke < settle.kinetic_energy_threshold;
+            let now = measure_world(spec, &world, &motion, surface, mean_r);
+            if let Some(hole) = &now.hole {
+                depths.push(hole.effective_depth);
+                openings.push(hole.opening_diameter);
+            }
+            let d = 2.0 * mean_r;
+            if ke < settle.kinetic_energy_threshold {
+                settled_by = SettledBy::KineticEnergy;
+            } else if depths.len() == openings.len()
+                && is_stable(&depths, settle, d)
+                && is_stable(&openings, settle, d)
+            {
+                settled_by = SettledBy::Stable;
+            }
         }
+        let came_to_rest = settled_by != SettledBy::TimeCap;
         if world.steps() % 200 == 0 || is_check {
             let phase = if t < t_feed {
                 "feeding"
@@ -438,6 +457,7 @@ fn drill(
             break;
         }
     }
+    let came_to_rest = settled_by != SettledBy::TimeCap;
     let _ = progress(Progress {
         fraction: 1.0,
         phase: "measuring",
@@ -448,47 +468,15 @@ fn drill(
     // Loads.
     let loads = load_series(&world, auger_id, &motion, surface, spec);
 
-    // The grains not resting on the lifted auger.
-    let tip_z = motion.reference_point_at(world.time()).z;
+    let Measured {
+        positions,
+        radii,
+        carried_out,
+        hole: measurement,
+        field: surface_field,
+        error: measure_error,
+    } = measure_world(spec, &world, &motion, surface, mean_r);
     let reach = 0.5 * a.outer_diameter;
-    let p = world.particles();
-    let mut positions = Vec::with_capacity(p.len());
-    let mut radii = Vec::with_capacity(p.len());
-    let mut carried_out = 0;
-    for k in 0..p.len() {
-        let x = p.position[k];
-        if x.z > tip_z && x.x.hypot(x.y) < reach + p.radius[k] {
-            carried_out += 1;
-            continue;
-        }
-        positions.push([x.x, x.y, x.z]);
-        radii.push(p.radius[k]);
-    }
-    let mean_r = bed.radii.iter().sum::<f64>() / bed.radii.len().max(1) as f64;
-    let m = &spec.measure;
-    let hf = height_field(
-        &positions,
-        &radii,
-        0.5 * spec.bin.size_x,
-        0.5 * spec.bin.size_y,
-        m.cell_fraction * mean_r,
-        m.probe_fraction * mean_r,
-        0.0,
-    );
-    let (measurement, surface_field, measure_error) = match hf {
-        Ok(hf) if !positions.is_empty() => {
-            let hole = measure_hole(
-                &hf,
-                surface,
-                [0.0, 0.0],
-                m.open_depth_diameters * 2.0 * mean_r,
-                reach,
-            );
-            (Some(hole), Some(hf), None)
-        }
-        Ok(_) => (None, None, Some("no grains left to measure".to_owned())),
-        Err(e) => (None, None, Some(e.to_string())),
-    };
     let cylinder = |pos: &[[f64; 3]], r: &[f64]| {
         solid_volume_in_cylinder(pos, r, [0.0, 0.0], reach, surface - d.depth, surface)
     };
@@ -569,6 +557,7 @@ fn drill(
         escaped: world.removed_count(),
         carried_out,
         kinetic_energy_ratio: ke,
+        settled_by,
         simulated_time_s: world.time(),
         steps: world.steps(),
         time_step_s: world.config().time_step,
@@ -584,6 +573,74 @@ fn drill(
         spec: spec.clone(),
         world,
     })
+}
+
+/// The grains and the hole at one moment.
+struct Measured {
+    /// Grains not resting on the auger.
+    positions: Vec<[f64; 3]>,
+    radii: Vec<f64>,
+    /// Grains on the auger (above its tip, within its radius).
+    carried_out: usize,
+    hole: Option<HoleMeasurement>,
+    field: Option<HeightField>,
+    error: Option<String>,
+}
+
+fn measure_world(
+    spec: &DrillSpec,
+    world: &World,
+    motion: &Motion,
+    surface: f64,
+    mean_r: f64,
+) -> Measured {
+    let tip_z = motion.reference_point_at(world.time()).z;
+    let reach = 0.5 * spec.auger.outer_diameter;
+    let p = world.particles();
+    let mut positions = Vec::with_capacity(p.len());
+    let mut radii = Vec::with_capacity(p.len());
+    let mut carried_out = 0;
+    for k in 0..p.len() {
+        let x = p.position[k];
+        if x.z > tip_z && x.x.hypot(x.y) < reach + p.radius[k] {
+            carried_out += 1;
+            continue;
+        }
+        positions.push([x.x, x.y, x.z]);
+        radii.push(p.radius[k]);
+    }
+    let m = &spec.measure;
+    let hf = height_field(
+        &positions,
+        &radii,
+        0.5 * spec.bin.size_x,
+        0.5 * spec.bin.size_y,
+        m.cell_fraction * mean_r,
+        m.probe_fraction * mean_r,
+        0.0,
+    );
+    let (hole, field, error) = match hf {
+        Ok(hf) if !positions.is_empty() => {
+            let hole = measure_hole(
+                &hf,
+                surface,
+                [0.0, 0.0],
+                m.open_depth_diameters * 2.0 * mean_r,
+                reach,
+            );
+            (Some(hole), Some(hf), None)
+        }
+        Ok(_) => (None, None, Some("no grains left to measure".to_owned())),
+        Err(e) => (None, None, Some(e.to_string())),
+    };
+    Measured {
+        positions,
+        radii,
+        carried_out,
+        hole,
+        field,
+        error,
+    }
 }
 
 struct Loads {

@@ -13,18 +13,18 @@
 //! | `soil_soil.*`, `soil_steel.*`, `materials.*`, `rolling_model`, `epsd_viscous_damping` | as in `AorSpec` | the paper's calibrated point |
 //! | `particle` | engine size distribution (radii, m) | uniform 2.7-3.3 mm radius |
 //! | `bin.size_x` / `.size_y` / `.height` | steel soil bin: footprint and wall height | 0.16 / 0.16 / 0.2 |
-//! | `bed.depth` | depth of the soil bed to fill, m | 0.15 |
+//! | `bed.depth` | depth of the soil bed aimed at (sizes the grain count), m | 0.14 |
 //! | `bed.seed` | seed of the bed (`null`: `seed`); fix it to share one bed across replicates | null |
 //! | `bed.packing_fraction` | solid fraction assumed to size the grain count (the settled beds measure about 0.52) | 0.52 |
-//! | `bed.settle.*` | at-rest criteria of the bed (`min_time`, `check_interval`, `kinetic_energy_threshold`, `time_cap`) | 0.3 / 0.05 / 1e-3 / 3 |
+//! | `bed.settle.*` | at-rest criteria of the bed (`min_time`, `check_interval`, `kinetic_energy_threshold`, `time_cap`, `stable_tolerance_diameters`, `stable_window`) | 0.3 / 0.05 / 1e-3 / 3 / 0.1 / 3 |
 //! | `auger.outer_diameter` / `.pitch` / `.shaft_diameter` / `.flight_thickness` / `.tip_length` | auger, m | 0.06 / 0.06 / 0.02 / 0.004 / 0.015 |
 //! | `auger.flight_above_surface` | flighted length above the original surface at full depth, m | 0.03 |
 //! | `auger.segments_per_turn` | facets per turn | 48 |
 //! | `drill.rpm` / `.clockwise` | spin, r/min, and its sense seen from above | 400 / true |
-//! | `drill.feed_speed` / `.depth` / `.withdraw_speed` | m/s, m (tip below the original surface), m/s | 0.02 / 0.12 / 0.02 |
+//! | `drill.feed_speed` / `.depth` / `.withdraw_speed` | m/s, m (tip below the original surface), m/s | 0.02 / 0.1 / 0.02 |
 //! | `drill.start_clearance` | tip height above the surface when the feed starts, m | 0.005 |
 //! | `drill.lift_speed` / `.lift_height` | after withdrawal the auger is lifted clear this fast and this far, m/s, m | 0.5 / 0.06 |
-//! | `settle.*` | at-rest criteria after the auger is out | 0.1 / 0.05 / 1e-3 / 1.0 |
+//! | `settle.*` | at-rest criteria after the auger is out (same fields) | 0.1 / 0.05 / 1e-3 / 1.0 / 0.1 / 3 |
 //! | `time_step_rayleigh_fraction` | Δt as a fraction of the Rayleigh time of the smallest grain | 0.2 |
 //! | `wall_time_cap` | wall-clock seconds before giving up (`null`: none) | null |
 //! | `seed` | seed of the bed (unless `bed.seed`) and of the auger's starting angle | 1 |
@@ -33,8 +33,8 @@
 //! # Presets
 //!
 //! * [`DrillSpec::paper`] (`default`): the paper's 60 mm auger at 400 r/min, fed at 20 mm/s and
-//!   withdrawn at 20 mm/s, but only 120 mm deep (not 600) in a 160 x 160 mm bin 150 mm deep,
-//!   with grains of 5.4-6.6 mm diameter (10 across the auger). About 19 000 grains.
+//!   withdrawn at 20 mm/s, but only 100 mm deep (not 600) in a 160 x 160 mm bin filled 140 mm
+//!   deep, with grains of 5.4-6.6 mm diameter (10 across the auger). About 16 000 grains.
 //! * [`DrillSpec::fast`] (`fast`, for tests): a 40 mm auger, 40 mm deep in a 90 x 90 mm bin
 //!   65 mm deep, the same grains, spin and feed three times faster (1200 r/min, 60 mm/s: the
 //!   same advance per turn). About 2 400 grains. (A time step of 30 % of the Rayleigh time
@@ -102,9 +102,16 @@ pub struct BinSpec {
     pub height: f64,
 }
 
-/// When a phase counts as "at rest": checks every `check_interval` after `min_time`; the mean
-/// kinetic energy per grain below `kinetic_energy_threshold × m g d` ends the phase; `time_cap`
-/// (simulated seconds in the phase) gives up.
+/// When a phase counts as "at rest": checks every `check_interval` after `min_time`; either
+/// criterion ends the phase, `time_cap` (simulated seconds in the phase) gives up:
+///
+/// * kinetic energy: the mean kinetic energy per grain is below `kinetic_energy_threshold ×
+///   m g d` (m, d: mean grain mass and diameter);
+/// * stable shape: over the last `stable_window` checks the measured shape moved by at most
+///   `stable_tolerance_diameters` grain diameters (the bed: its surface level; after drilling:
+///   the hole's effective depth and opening diameter). Constant-torque rolling friction keeps a
+///   deep bed of these soft grains jittering at a kinetic energy ratio of about 1e-3 although
+///   nothing moves any more at the scale of a grain.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SettleSpec {
@@ -116,6 +123,19 @@ pub struct SettleSpec {
     pub kinetic_energy_threshold: f64,
     /// s
     pub time_cap: f64,
+    /// Grain diameters.
+    #[serde(default = "default_stable_tolerance")]
+    pub stable_tolerance_diameters: f64,
+    /// Consecutive checks (at least 2).
+    #[serde(default = "default_stable_window")]
+    pub stable_window: usize,
+}
+
+fn default_stable_tolerance() -> f64 {
+    0.1
+}
+fn default_stable_window() -> usize {
+    3
 }
 
 /// The soil bed: grains dropped from a loose lattice filling the bin, settled under gravity.
@@ -286,6 +306,8 @@ impl DrillSpec {
                     check_interval: 0.05,
                     kinetic_energy_threshold: 1e-3,
                     time_cap: 3.0,
+                    stable_tolerance_diameters: default_stable_tolerance(),
+                    stable_window: default_stable_window(),
                 },
             },
             auger: AugerGeometry {
@@ -312,6 +334,8 @@ impl DrillSpec {
                 check_interval: 0.05,
                 kinetic_energy_threshold: 1e-3,
                 time_cap: 1.0,
+                stable_tolerance_diameters: default_stable_tolerance(),
+                stable_window: default_stable_window(),
             },
             time_step_rayleigh_fraction: default_rayleigh_fraction(),
             wall_time_cap: None,
@@ -321,7 +345,7 @@ impl DrillSpec {
     }
 
     /// The default resolution: the paper's auger and kinematics and calibrated contact
-    /// parameters, 120 mm deep in a 160 x 160 mm bin with a 150 mm bed of 5.4-6.6 mm grains.
+    /// parameters, 100 mm deep in a 160 x 160 mm bin with a 140 mm bed of 5.4-6.6 mm grains.
     pub fn paper() -> DrillSpec {
         let mut spec = DrillSpec::full_scale();
         spec.bin = BinSpec {
@@ -329,8 +353,8 @@ impl DrillSpec {
             size_y: 0.16,
             height: 0.2,
         };
-        spec.bed.depth = 0.15;
-        spec.drill.depth = 0.12;
+        spec.bed.depth = 0.14;
+        spec.drill.depth = 0.1;
         spec
     }
 
@@ -478,6 +502,16 @@ impl DrillSpec {
                 s.kinetic_energy_threshold,
             )?;
             positive(&format!("{prefix}.time_cap"), s.time_cap)?;
+            non_negative(
+                &format!("{prefix}.stable_tolerance_diameters"),
+                s.stable_tolerance_diameters,
+            )?;
+            if s.stable_window < 2 {
+                return Err(invalid(
+                    &format!("{prefix}.stable_window"),
+                    "must be at least 2",
+                ));
+            }
         }
         let a = &self.auger;
         positive("auger.outer_diameter", a.outer_diameter)?;
