@@ -410,9 +410,9 @@ pub(crate) fn contour(
         ));
     }
     f.raw(&format!(
-        r#"<text x="{}" y="{}" text-anchor="end">bold line: {} · range {}..{}</text>"#,
+        r#"<text x="{}" y="{}" text-anchor="end" font-size="9">bold line: {} · range {}..{}</text>"#,
         W - MR,
-        MT - 4.0,
+        H - 2.0,
         fmt_tick(target),
         fmt_tick(zmin),
         fmt_tick(zmax)

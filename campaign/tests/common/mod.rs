@@ -118,7 +118,10 @@ pub fn lookup_template(rows: &[Row]) -> repose_api::ExperimentTemplate {
 }
 
 /// Expands a batch into (design row, replicate, seed, natural values) as the server does.
-pub fn expand(batch: &BatchRequest) -> Vec<(usize, usize, u64, Vec<f64>, Vec<f64>)> {
+/// (design row, replicate, seed, coded values, natural values) of one run.
+pub type ExpandedRun = (usize, usize, u64, Vec<f64>, Vec<f64>);
+
+pub fn expand(batch: &BatchRequest) -> Vec<ExpandedRun> {
     let factors: Vec<Factor> = batch
         .factors
         .iter()
