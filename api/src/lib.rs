@@ -480,6 +480,82 @@ pub struct JobUpdateResponse {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Campaigns (the request type lives in `repose-campaign`, which owns its validation)
+// ---------------------------------------------------------------------------------------------
+
+/// Reply to `POST /v1/campaigns`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CampaignCreated {
+    /// The new campaign.
+    pub id: Uuid,
+    /// Its first (screening) batch, already queued.
+    pub first_batch: Uuid,
+}
+
+/// One line of `GET /v1/campaigns`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CampaignSummary {
+    /// Campaign id.
+    pub id: Uuid,
+    /// Label given at submission.
+    pub name: String,
+    /// `running`, `finished` or `needs_attention`.
+    pub status: String,
+    /// Stage of the outstanding (or last) batch: `screening`, `steepest`, …
+    pub stage: String,
+    /// Batches issued so far.
+    pub batches: u64,
+    /// Submission time, Unix milliseconds.
+    pub created_at_ms: i64,
+    /// Last change, Unix milliseconds.
+    pub updated_at_ms: i64,
+}
+
+/// A batch a campaign issued, with its progress.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CampaignBatch {
+    /// Issue order, from 0.
+    pub index: u64,
+    /// Stage it belongs to.
+    pub stage: String,
+    /// The batch (`GET /v1/batches/{id}` for details).
+    pub batch_id: Uuid,
+    /// Its life-cycle state.
+    pub state: BatchState,
+    /// Finished runs as a percentage of all its runs.
+    pub percent_done: f64,
+}
+
+/// A decision the campaign took and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CampaignDecision {
+    /// Stage that decided.
+    pub stage: String,
+    /// Response-surface round.
+    pub round: u32,
+    /// The explanation, in plain words.
+    pub text: String,
+}
+
+/// `GET /v1/campaigns/{id}`: where a campaign is and what it decided so far.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CampaignView {
+    /// Identity, status and stage.
+    #[serde(flatten)]
+    pub summary: CampaignSummary,
+    /// Why it stopped, when `status` is `needs_attention`.
+    pub reason: Option<String>,
+    /// Progress of the outstanding batch, percent.
+    pub stage_percent_done: Option<f64>,
+    /// Batches in issue order.
+    pub batch_list: Vec<CampaignBatch>,
+    /// Decisions in order.
+    pub decisions: Vec<CampaignDecision>,
+    /// The calibrated parameters and verification, once finished.
+    pub result: Option<Value>,
+}
+
+// ---------------------------------------------------------------------------------------------
 // Analysis and errors
 // ---------------------------------------------------------------------------------------------
 

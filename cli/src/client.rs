@@ -92,7 +92,11 @@ impl UserClient {
             .await
             .with_context(|| format!("cannot reach the server at {}", self.base))?;
         let status = response.status();
-        let body = response.bytes().await.context("reading the reply")?.to_vec();
+        let body = response
+            .bytes()
+            .await
+            .context("reading the reply")?
+            .to_vec();
         Ok((status, body))
     }
 
@@ -106,8 +110,11 @@ impl UserClient {
 
     /// Submits a batch document as is (the server validates it).
     pub async fn submit(&self, batch: &serde_json::Value) -> Result<BatchCreated> {
-        self.expect(self.request(reqwest::Method::POST, "/v1/batches").json(batch))
-            .await
+        self.expect(
+            self.request(reqwest::Method::POST, "/v1/batches")
+                .json(batch),
+        )
+        .await
     }
 
     pub async fn batches(&self) -> Result<Vec<BatchSummary>> {
@@ -186,7 +193,10 @@ pub fn describe_error(status: StatusCode, body: &[u8]) -> String {
         Ok(ApiError { error, field: None }) => format!("server answered {status}: {error}"),
         Err(_) => format!(
             "server answered {status}: {}",
-            String::from_utf8_lossy(body).chars().take(300).collect::<String>()
+            String::from_utf8_lossy(body)
+                .chars()
+                .take(300)
+                .collect::<String>()
         ),
     }
 }
@@ -207,8 +217,10 @@ pub fn progress_bar(hidden: bool) -> ProgressBar {
         ProgressBar::new(1)
     };
     bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} runs {msg}")
-            .expect("valid template"),
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} runs {msg}",
+        )
+        .expect("valid template"),
     );
     bar.enable_steady_tick(Duration::from_millis(200));
     bar
@@ -216,8 +228,8 @@ pub fn progress_bar(hidden: bool) -> ProgressBar {
 
 /// Reads a batch file as JSON (the server checks the contents).
 pub fn read_batch_file(path: &PathBuf) -> Result<serde_json::Value> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))
 }
 

@@ -137,7 +137,10 @@ async fn up(config: UpConfig) -> Result<()> {
         })));
     }
     // stdout: where things are, in a form a shell can use.
-    println!("repose up: server {url}, database {}", config.server.db_path.display());
+    println!(
+        "repose up: server {url}, database {}",
+        config.server.db_path.display()
+    );
     println!(
         "  {} workers × {} threads; tokens in {} (source it for curl and repose submit/status)",
         config.workers,

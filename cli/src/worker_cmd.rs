@@ -30,7 +30,10 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
         bail!("--slots must be at least 1");
     }
     if !(args.server.starts_with("http://") || args.server.starts_with("https://")) {
-        bail!("--server must be an http:// or https:// URL, got {:?}", args.server);
+        bail!(
+            "--server must be an http:// or https:// URL, got {:?}",
+            args.server
+        );
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = match args.threads {

@@ -204,7 +204,10 @@ pub fn render_text(view: &AnalysisView) -> String {
             view.runs_used
         );
         if let (Some(target), Some(error)) = (number("target"), number("relative_error_pct")) {
-            let _ = write!(out, "; target {target}, relative error of the mean {error:.2} %");
+            let _ = write!(
+                out,
+                "; target {target}, relative error of the mean {error:.2} %"
+            );
         }
         let _ = writeln!(out);
     }

@@ -152,59 +152,8 @@ impl Db {
 
     /// Stores a validated batch with one run and one queued job per planned run.
     pub async fn insert_batch(&self, plan: &PlannedBatch, owner: &str) -> Result<Uuid, AppError> {
-        let batch_id = Uuid::new_v4();
-        let now = now_ms();
-        let request = &plan.request;
         let mut tx = self.writer.begin().await?;
-        sqlx::query(
-            "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
-                                  target, base_seed, state, created_at, owner)
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?)",
-        )
-        .bind(batch_id.to_string())
-        .bind(&request.name)
-        .bind(&request.experiment.kind)
-        .bind(serde_json::to_string(request)?)
-        .bind(serde_json::to_string(&plan.factors)?)
-        .bind(serde_json::to_string(&plan.design_kind)?)
-        .bind(&request.response)
-        .bind(model_to_db(request.model))
-        .bind(request.target)
-        .bind(plan.base_seed as i64)
-        .bind(now)
-        .bind(owner)
-        .execute(&mut *tx)
-        .await?;
-        for run in &plan.runs {
-            let run_id = Uuid::new_v4().to_string();
-            sqlx::query(
-                "INSERT INTO runs (id, batch_id, run_index, design_row, replicate, coded, natural,
-                                   seed, spec)
-                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            )
-            .bind(&run_id)
-            .bind(batch_id.to_string())
-            .bind(run.run_index as i64)
-            .bind(run.design_row as i64)
-            .bind(run.replicate as i64)
-            .bind(serde_json::to_string(&run.coded)?)
-            .bind(serde_json::to_string(&run.natural)?)
-            .bind(run.seed as i64)
-            .bind(serde_json::to_string(&run.spec)?)
-            .execute(&mut *tx)
-            .await?;
-            sqlx::query(
-                "INSERT INTO jobs (id, run_id, batch_id, state, attempts, available_at, updated_at)
-                 VALUES (?, ?, ?, 'queued', 0, ?, ?)",
-            )
-            .bind(Uuid::new_v4().to_string())
-            .bind(&run_id)
-            .bind(batch_id.to_string())
-            .bind(now)
-            .bind(now)
-            .execute(&mut *tx)
-            .await?;
-        }
+        let batch_id = insert_batch_tx(&mut tx, plan, owner).await?;
         tx.commit().await?;
         Ok(batch_id)
     }
@@ -959,6 +908,67 @@ impl LeaseLookup {
     }
 }
 
+/// Inserts a batch, its runs and their jobs inside the caller's transaction.
+async fn insert_batch_tx(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    plan: &PlannedBatch,
+    owner: &str,
+) -> Result<Uuid, AppError> {
+    let batch_id = Uuid::new_v4();
+    let now = now_ms();
+    let request = &plan.request;
+    sqlx::query(
+        "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
+                                  target, base_seed, state, created_at, owner)
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?)",
+    )
+    .bind(batch_id.to_string())
+    .bind(&request.name)
+    .bind(&request.experiment.kind)
+    .bind(serde_json::to_string(request)?)
+    .bind(serde_json::to_string(&plan.factors)?)
+    .bind(serde_json::to_string(&plan.design_kind)?)
+    .bind(&request.response)
+    .bind(model_to_db(request.model))
+    .bind(request.target)
+    .bind(plan.base_seed as i64)
+    .bind(now)
+    .bind(owner)
+    .execute(&mut **tx)
+    .await?;
+    for run in &plan.runs {
+        let run_id = Uuid::new_v4().to_string();
+        sqlx::query(
+            "INSERT INTO runs (id, batch_id, run_index, design_row, replicate, coded, natural,
+                                   seed, spec)
+                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        )
+        .bind(&run_id)
+        .bind(batch_id.to_string())
+        .bind(run.run_index as i64)
+        .bind(run.design_row as i64)
+        .bind(run.replicate as i64)
+        .bind(serde_json::to_string(&run.coded)?)
+        .bind(serde_json::to_string(&run.natural)?)
+        .bind(run.seed as i64)
+        .bind(serde_json::to_string(&run.spec)?)
+        .execute(&mut **tx)
+        .await?;
+        sqlx::query(
+            "INSERT INTO jobs (id, run_id, batch_id, state, attempts, available_at, updated_at)
+                 VALUES (?, ?, ?, 'queued', 0, ?, ?)",
+        )
+        .bind(Uuid::new_v4().to_string())
+        .bind(&run_id)
+        .bind(batch_id.to_string())
+        .bind(now)
+        .bind(now)
+        .execute(&mut **tx)
+        .await?;
+    }
+    Ok(batch_id)
+}
+
 /// Finds the lease `token` of job `job_id`: 404 if the job does not exist, 409 if the token was
 /// never issued for it.
 async fn lookup_lease(
@@ -1158,4 +1168,200 @@ fn model_from_db(text: &str) -> Result<ModelName, AppError> {
         "none" => Ok(ModelName::None),
         other => Err(AppError::Internal(format!("stored model {other:?}"))),
     }
+}
+
+/// A stored campaign.
+#[derive(Debug, Clone)]
+pub struct CampaignRecord {
+    pub id: Uuid,
+    pub name: String,
+    pub owner: Option<String>,
+    pub status: String,
+    pub stage: String,
+    /// The `repose_campaign::Campaign` document.
+    pub state: String,
+    pub batches_issued: i64,
+    pub created_at_ms: i64,
+    pub updated_at_ms: i64,
+    /// Batch ids in issue order.
+    pub batch_ids: Vec<Uuid>,
+}
+
+/// What a campaign advance writes.
+#[derive(Debug)]
+pub struct CampaignUpdate<'a> {
+    pub status: &'a str,
+    pub stage: &'a str,
+    pub state: String,
+    /// The next batch to issue, if any.
+    pub next: Option<&'a PlannedBatch>,
+}
+
+// Campaigns: the chain of batches is written here; decisions are made by `repose-campaign`.
+impl Db {
+    /// Stores a new campaign with its first batch, in one transaction; returns the batch id.
+    pub async fn insert_campaign(
+        &self,
+        id: Uuid,
+        name: &str,
+        owner: &str,
+        update: CampaignUpdate<'_>,
+    ) -> Result<Uuid, AppError> {
+        let now = now_ms();
+        let first = update
+            .next
+            .ok_or_else(|| AppError::Internal("a campaign starts with a batch".into()))?;
+        let mut tx = self.writer.begin().await?;
+        sqlx::query(
+            "INSERT INTO campaigns (id, name, owner, status, stage, state, batches_issued,
+                                    created_at, updated_at)
+             VALUES (?, ?, ?, ?, ?, ?, 1, ?, ?)",
+        )
+        .bind(id.to_string())
+        .bind(name)
+        .bind(owner)
+        .bind(update.status)
+        .bind(update.stage)
+        .bind(&update.state)
+        .bind(now)
+        .bind(now)
+        .execute(&mut *tx)
+        .await?;
+        let batch_id = insert_batch_tx(&mut tx, first, owner).await?;
+        link_batch(&mut tx, batch_id, id, 0).await?;
+        tx.commit().await?;
+        Ok(batch_id)
+    }
+
+    /// Records a campaign step if nobody advanced it since `issued_before` batches were issued;
+    /// `Ok(None)` when someone did (nothing written). Returns the new batch's id, if one.
+    pub async fn advance_campaign(
+        &self,
+        id: Uuid,
+        issued_before: i64,
+        owner: Option<&str>,
+        update: CampaignUpdate<'_>,
+    ) -> Result<Option<Option<Uuid>>, AppError> {
+        let now = now_ms();
+        let mut tx = self.writer.begin().await?;
+        let issued_after = issued_before + i64::from(update.next.is_some());
+        let changed = sqlx::query(
+            "UPDATE campaigns SET status = ?, stage = ?, state = ?, batches_issued = ?,
+                                  updated_at = ?
+             WHERE id = ? AND batches_issued = ?",
+        )
+        .bind(update.status)
+        .bind(update.stage)
+        .bind(&update.state)
+        .bind(issued_after)
+        .bind(now)
+        .bind(id.to_string())
+        .bind(issued_before)
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        if changed != 1 {
+            return Ok(None);
+        }
+        let batch_id = match update.next {
+            Some(plan) => {
+                let batch_id = insert_batch_tx(&mut tx, plan, owner.unwrap_or("")).await?;
+                link_batch(&mut tx, batch_id, id, issued_before).await?;
+                Some(batch_id)
+            }
+            None => None,
+        };
+        tx.commit().await?;
+        Ok(Some(batch_id))
+    }
+
+    /// The campaign a batch belongs to and the batch's position in it.
+    pub async fn campaign_of_batch(&self, batch_id: Uuid) -> Result<Option<(Uuid, i64)>, AppError> {
+        let row = sqlx::query(
+            "SELECT campaign_id, campaign_index FROM batches
+             WHERE id = ? AND campaign_id IS NOT NULL",
+        )
+        .bind(batch_id.to_string())
+        .fetch_optional(&self.reader)
+        .await?;
+        row.map(|row| -> Result<(Uuid, i64), AppError> {
+            Ok((
+                parse_uuid(&row.try_get::<String, _>("campaign_id")?)?,
+                row.try_get("campaign_index")?,
+            ))
+        })
+        .transpose()
+    }
+
+    /// One campaign with its batch ids.
+    pub async fn campaign(&self, id: Uuid) -> Result<Option<CampaignRecord>, AppError> {
+        let Some(row) = sqlx::query("SELECT * FROM campaigns WHERE id = ?")
+            .bind(id.to_string())
+            .fetch_optional(&self.reader)
+            .await?
+        else {
+            return Ok(None);
+        };
+        let batch_rows =
+            sqlx::query("SELECT id FROM batches WHERE campaign_id = ? ORDER BY campaign_index")
+                .bind(id.to_string())
+                .fetch_all(&self.reader)
+                .await?;
+        let batch_ids = batch_rows
+            .iter()
+            .map(|r| parse_uuid(&r.try_get::<String, _>("id")?))
+            .collect::<Result<Vec<_>, AppError>>()?;
+        Ok(Some(campaign_from_row(&row, batch_ids)?))
+    }
+
+    /// The newest campaigns (without their batch ids), newest first.
+    pub async fn list_campaigns(&self, limit: u32) -> Result<Vec<CampaignRecord>, AppError> {
+        let rows = sqlx::query("SELECT * FROM campaigns ORDER BY created_at DESC LIMIT ?")
+            .bind(i64::from(limit))
+            .fetch_all(&self.reader)
+            .await?;
+        rows.iter()
+            .map(|row| campaign_from_row(row, Vec::new()))
+            .collect()
+    }
+
+    /// Ids of the campaigns still running (resumed at start-up).
+    pub async fn running_campaigns(&self) -> Result<Vec<Uuid>, AppError> {
+        let rows = sqlx::query("SELECT id FROM campaigns WHERE status = 'running'")
+            .fetch_all(&self.reader)
+            .await?;
+        rows.iter()
+            .map(|r| parse_uuid(&r.try_get::<String, _>("id")?))
+            .collect()
+    }
+}
+
+async fn link_batch(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    batch_id: Uuid,
+    campaign_id: Uuid,
+    index: i64,
+) -> Result<(), AppError> {
+    sqlx::query("UPDATE batches SET campaign_id = ?, campaign_index = ? WHERE id = ?")
+        .bind(campaign_id.to_string())
+        .bind(index)
+        .bind(batch_id.to_string())
+        .execute(&mut **tx)
+        .await?;
+    Ok(())
+}
+
+fn campaign_from_row(row: &SqliteRow, batch_ids: Vec<Uuid>) -> Result<CampaignRecord, AppError> {
+    Ok(CampaignRecord {
+        id: parse_uuid(&row.try_get::<String, _>("id")?)?,
+        name: row.try_get("name")?,
+        owner: row.try_get("owner")?,
+        status: row.try_get("status")?,
+        stage: row.try_get("stage")?,
+        state: row.try_get("state")?,
+        batches_issued: row.try_get("batches_issued")?,
+        created_at_ms: row.try_get("created_at")?,
+        updated_at_ms: row.try_get("updated_at")?,
+        batch_ids,
+    })
 }

@@ -26,6 +26,7 @@ use tokio::sync::{watch, Notify};
 
 mod analysis;
 pub mod auth;
+mod campaigns;
 mod db;
 mod error;
 mod metrics;
@@ -156,6 +157,9 @@ pub async fn serve(
     if let Ok(addr) = listener.local_addr() {
         tracing::info!(%addr, db = %state.config.db_path.display(), "repose server listening");
     }
+    // Campaigns whose batch finished while the server was down continue now.
+    let resuming = state.clone();
+    tokio::spawn(async move { campaigns::resume_all(&resuming).await });
     let stopping = state.clone();
     let result = axum::serve(listener, app(state.clone()))
         .with_graceful_shutdown(async move {

@@ -13,7 +13,8 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{on, MethodFilter, MethodRouter};
 use axum::{Json, Router};
 use repose_api::{
-    BatchCreated, BatchRequest, BatchState, ClaimRequest, Completion, Failure, Health, Heartbeat,
+    BatchCreated, BatchRequest, BatchState, CampaignBatch, CampaignCreated, CampaignDecision,
+    CampaignSummary, CampaignView, ClaimRequest, Completion, Failure, Health, Heartbeat,
     HeartbeatResponse, JobUpdateResponse, Release, RunState, RunView, WorkerRegistered,
     WorkerRegistration,
 };
@@ -25,7 +26,7 @@ use uuid::Uuid;
 use crate::auth::{authorize, Access, Caller};
 use crate::db::JobUpdate;
 use crate::error::AppError;
-use crate::{analysis, submit, AppState};
+use crate::{analysis, campaigns, submit, AppState};
 
 /// How often a waiting claim re-checks the queue even without a notification, so retry
 /// back-offs and expired leases are picked up without a background task.
@@ -120,6 +121,18 @@ pub const ENDPOINTS: &[Endpoint] = &[
     }),
     ep(Verb::Get, "/v1/batches/{id}/analysis", Access::Read, |m| {
         on(m, batch_analysis)
+    }),
+    ep(Verb::Post, "/v1/campaigns", Access::User, |m| {
+        on(m, create_campaign)
+    }),
+    ep(Verb::Get, "/v1/campaigns", Access::Read, |m| {
+        on(m, list_campaigns)
+    }),
+    ep(Verb::Get, "/v1/campaigns/{id}", Access::Read, |m| {
+        on(m, campaign_status)
+    }),
+    ep(Verb::Get, "/v1/campaigns/{id}/report", Access::Read, |m| {
+        on(m, campaign_report)
     }),
     ep(Verb::Get, "/v1/workers", Access::Read, |m| {
         on(m, list_workers)
@@ -330,6 +343,10 @@ async fn cancel_batch(
                 .batch_status(id)
                 .await?
                 .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+            // A campaign waiting on this batch stops and says why.
+            if let Err(err) = campaigns::advance_after_batch(&state, id).await {
+                tracing::error!(batch = %id, error = %err, "campaign could not record the cancel");
+            }
             Ok(Json(status))
         }
     }
@@ -406,6 +423,10 @@ fn analyse_in_background(state: &AppState, batches: Vec<Uuid>) {
                     tracing::info!(batch = %batch_id, error = ?view.error, "batch analysed")
                 }
                 Err(err) => tracing::error!(batch = %batch_id, error = %err, "analysis failed"),
+            }
+            // A campaign's next stage is generated from this batch.
+            if let Err(err) = campaigns::advance_after_batch(&state, batch_id).await {
+                tracing::error!(batch = %batch_id, error = %err, "campaign could not advance");
             }
         });
     }
@@ -665,5 +686,134 @@ fn csv_field(field: &str) -> String {
         format!("\"{}\"", field.replace('"', "\"\""))
     } else {
         field.to_owned()
+    }
+}
+
+/// Campaigns listed by `GET /v1/campaigns`.
+const CAMPAIGN_LIST_LIMIT: u32 = 200;
+
+async fn create_campaign(
+    State(state): State<AppState>,
+    caller: Caller,
+    ValidJson(request): ValidJson<repose_campaign::CampaignRequest>,
+) -> Result<(StatusCode, Json<CampaignCreated>), AppError> {
+    let (id, first_batch) = campaigns::create(&state, request, &caller.name).await?;
+    tracing::info!(campaign = %id, batch = %first_batch, "campaign started");
+    Ok((
+        StatusCode::CREATED,
+        Json(CampaignCreated { id, first_batch }),
+    ))
+}
+
+async fn list_campaigns(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
+    let records = state.db.list_campaigns(CAMPAIGN_LIST_LIMIT).await?;
+    Ok(Json(
+        records
+            .iter()
+            .map(campaign_summary)
+            .collect::<Vec<CampaignSummary>>(),
+    ))
+}
+
+fn campaign_summary(record: &crate::db::CampaignRecord) -> CampaignSummary {
+    CampaignSummary {
+        id: record.id,
+        name: record.name.clone(),
+        status: record.status.clone(),
+        stage: record.stage.clone(),
+        batches: u64::try_from(record.batches_issued).unwrap_or(0),
+        created_at_ms: record.created_at_ms,
+        updated_at_ms: record.updated_at_ms,
+    }
+}
+
+async fn campaign_status(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+) -> Result<impl IntoResponse, AppError> {
+    let id = parse_id(&raw_id, "campaign")?;
+    let record = state
+        .db
+        .campaign(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    let campaign = campaigns::decode(&record)?;
+    let mut batch_list = Vec::new();
+    for (index, batch_id) in record.batch_ids.iter().enumerate() {
+        let Some(status) = state.db.batch_status(*batch_id).await? else {
+            continue;
+        };
+        let stage = campaign
+            .batches
+            .get(index)
+            .map_or_else(|| "unknown".to_owned(), |b| campaigns::stage_id(b.stage));
+        batch_list.push(CampaignBatch {
+            index: index as u64,
+            stage,
+            batch_id: *batch_id,
+            state: status.summary.state,
+            percent_done: status.summary.percent_done,
+        });
+    }
+    let stage_percent_done = campaign
+        .outstanding()
+        .and_then(|i| batch_list.get(i))
+        .map(|b| b.percent_done);
+    let reason = match &campaign.status {
+        repose_campaign::Status::NeedsAttention { reason } => Some(reason.clone()),
+        _ => None,
+    };
+    Ok(Json(CampaignView {
+        summary: campaign_summary(&record),
+        reason,
+        stage_percent_done,
+        batch_list,
+        decisions: campaign
+            .decisions
+            .iter()
+            .map(|d| CampaignDecision {
+                stage: campaigns::stage_id(d.stage),
+                round: d.round,
+                text: d.text.clone(),
+            })
+            .collect(),
+        result: campaign
+            .summary
+            .as_ref()
+            .and_then(|summary| serde_json::to_value(summary).ok()),
+    }))
+}
+
+/// The campaign report: a self-contained HTML page, or `?format=json`.
+async fn campaign_report(
+    State(state): State<AppState>,
+    Path(raw_id): Path<String>,
+    Query(query): Query<FormatQuery>,
+) -> Result<Response, AppError> {
+    let id = parse_id(&raw_id, "campaign")?;
+    let record = state
+        .db
+        .campaign(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    let campaign = campaigns::decode(&record)?;
+    let results = campaigns::stage_results(&state, &record).await?;
+    match query.format.as_deref() {
+        Some("json") => Ok(Json(repose_campaign::report_json(&campaign, &results)).into_response()),
+        None | Some("html") => {
+            let html = tokio::task::spawn_blocking(move || {
+                repose_campaign::report_html(
+                    &campaign,
+                    &results,
+                    &repose_campaign::ReportPictures::default(),
+                )
+            })
+            .await
+            .map_err(|err| AppError::Internal(format!("report task: {err}")))?;
+            Ok(([(header::CONTENT_TYPE, "text/html; charset=utf-8")], html).into_response())
+        }
+        Some(other) => Err(AppError::BadRequest(format!(
+            "unknown format `{other}` (expected html or json)"
+        ))),
     }
 }

@@ -78,7 +78,10 @@ fn a_batch_runs_through_two_worker_processes_and_is_analysed() {
     assert!(angles.iter().all(|a| (5.0..60.0).contains(a)), "{angles:?}");
 
     let analysis = service.get(&format!("/v1/batches/{batch}/analysis"));
-    assert_eq!(analysis["runs_used"].as_u64().unwrap() as usize, angles.len());
+    assert_eq!(
+        analysis["runs_used"].as_u64().unwrap() as usize,
+        angles.len()
+    );
     assert!(analysis["fit"].is_object(), "{analysis}");
 }
 
@@ -102,7 +105,11 @@ fn a_worker_killed_mid_job_is_re_leased_and_the_run_has_exactly_one_result() {
         .iter()
         .filter(|r| r["attempts"].as_u64() == Some(2))
         .collect();
-    assert_eq!(re_leased.len(), 1, "the killed worker's job was leased again: {runs:?}");
+    assert_eq!(
+        re_leased.len(),
+        1,
+        "the killed worker's job was leased again: {runs:?}"
+    );
     for run in &runs {
         assert_eq!(run["status"], "completed");
         let x = run["factors"][0]["natural"].as_f64().unwrap();
@@ -151,9 +158,15 @@ fn sigterm_releases_the_running_job_without_counting_an_attempt() {
         worker.log_text()
     );
     let status = service.get(&format!("/v1/batches/{batch}"));
-    assert_eq!(status["counts"]["queued"], 2, "job released at once: {status}");
+    assert_eq!(
+        status["counts"]["queued"], 2,
+        "job released at once: {status}"
+    );
     let runs = runs(&service, &batch);
-    assert!(runs.iter().all(|r| r["attempts"] == 0), "release is not an attempt: {runs:?}");
+    assert!(
+        runs.iter().all(|r| r["attempts"] == 0),
+        "release is not an attempt: {runs:?}"
+    );
 }
 
 #[test]
@@ -163,7 +176,14 @@ fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
     std::fs::write(&batch_file, replay_batch(4, 0.0).to_string()).unwrap();
     let db = dir.path().join("up.db");
     let out = std::process::Command::new(common::repose_bin())
-        .args(["up", "--workers", "2", "--listen", "127.0.0.1:0", "--exit-when-done"])
+        .args([
+            "up",
+            "--workers",
+            "2",
+            "--listen",
+            "127.0.0.1:0",
+            "--exit-when-done",
+        ])
         .arg("--db")
         .arg(&db)
         .arg("--submit")
@@ -172,11 +192,20 @@ fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
         .unwrap();
     let stdout = common::stdout(&out);
     assert!(out.status.success(), "{stdout}\n{}", common::stderr(&out));
-    assert!(stdout.contains("Completed: 4 completed, 0 dead"), "{stdout}");
-    assert!(stdout.contains("ANOVA"), "the analysis is printed: {stdout}");
+    assert!(
+        stdout.contains("Completed: 4 completed, 0 dead"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("ANOVA"),
+        "the analysis is printed: {stdout}"
+    );
     let tokens = std::fs::read_to_string(dir.path().join("up.db.tokens.env")).unwrap();
     assert!(tokens.contains("export REPOSE_TOKEN=rp_user_"), "{tokens}");
-    assert!(tokens.contains("export REPOSE_WORKER_TOKEN=rp_worker_"), "{tokens}");
+    assert!(
+        tokens.contains("export REPOSE_WORKER_TOKEN=rp_worker_"),
+        "{tokens}"
+    );
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
@@ -210,17 +239,29 @@ fn submit_status_and_watch_talk_to_the_server() {
         .unwrap()
         .to_owned();
     let listed = cli(&["status"]);
-    assert!(common::stdout(&listed).contains(&id), "{}", common::stdout(&listed));
+    assert!(
+        common::stdout(&listed).contains(&id),
+        "{}",
+        common::stdout(&listed)
+    );
     let _worker = service.start_worker("worker", &[]);
     let watched = cli(&["watch", &id, "--interval-s", "0.2"]);
     assert!(watched.status.success(), "{}", common::stderr(&watched));
-    assert!(common::stdout(&watched).contains("Coefficients"), "{}", common::stdout(&watched));
+    assert!(
+        common::stdout(&watched).contains("Coefficients"),
+        "{}",
+        common::stdout(&watched)
+    );
 
     // A bad batch file is one line naming the field, exit status 2.
     std::fs::write(&batch_file, r#"{"name": "x"}"#).unwrap();
     let refused = cli(&["submit", batch_file.to_str().unwrap()]);
     assert_eq!(refused.status.code(), Some(2));
-    assert!(common::stderr(&refused).contains("422"), "{}", common::stderr(&refused));
+    assert!(
+        common::stderr(&refused).contains("422"),
+        "{}",
+        common::stderr(&refused)
+    );
     // Without a token the server says 401.
     let anonymous = std::process::Command::new(common::repose_bin())
         .args(["status", "--server", &service.url])
@@ -228,5 +269,9 @@ fn submit_status_and_watch_talk_to_the_server() {
         .output()
         .unwrap();
     assert_eq!(anonymous.status.code(), Some(2));
-    assert!(common::stderr(&anonymous).contains("401"), "{}", common::stderr(&anonymous));
+    assert!(
+        common::stderr(&anonymous).contains("401"),
+        "{}",
+        common::stderr(&anonymous)
+    );
 }

@@ -19,10 +19,7 @@ pub enum CallError {
     Unreachable(#[source] reqwest::Error),
     /// The server answered with an error status.
     #[error("server answered {status}: {message}")]
-    Status {
-        status: StatusCode,
-        message: String,
-    },
+    Status { status: StatusCode, message: String },
     /// The server answered 2xx with a body that is not the expected type.
     #[error("unexpected reply: {0}")]
     Decode(String),
@@ -75,9 +72,13 @@ impl Client {
         &self,
         registration: &WorkerRegistration,
     ) -> Result<WorkerRegistered, CallError> {
-        self.post("/v1/workers/register", registration, Duration::from_secs(10))
-            .await?
-            .ok_or_else(|| CallError::Decode("empty registration reply".into()))
+        self.post(
+            "/v1/workers/register",
+            registration,
+            Duration::from_secs(10),
+        )
+        .await?
+        .ok_or_else(|| CallError::Decode("empty registration reply".into()))
     }
 
     /// Asks for a job, waiting up to `wait`; `None` when none appeared.

@@ -80,7 +80,11 @@ pub fn create_token(db: &Path, name: &str, role: &str) -> String {
         .output()
         .expect("running repose token create");
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "token create failed: {text} {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "token create failed: {text} {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     text.split_whitespace()
         .find(|w| w.starts_with("rp_"))
         .unwrap_or_else(|| panic!("no token in {text:?}"))
@@ -88,7 +92,13 @@ pub fn create_token(db: &Path, name: &str, role: &str) -> String {
 }
 
 /// Starts `repose server` on `port` (0: any) and waits for its "listening on" line.
-pub fn start_server(dir: &Path, db: &Path, port: u16, lease_s: f64, name: &str) -> (Proc, String, u16) {
+pub fn start_server(
+    dir: &Path,
+    db: &Path,
+    port: u16,
+    lease_s: f64,
+    name: &str,
+) -> (Proc, String, u16) {
     let (log, file) = log_file(dir, name);
     let mut child = Command::new(repose_bin())
         .args(["server", "--listen", &format!("127.0.0.1:{port}"), "--db"])
@@ -165,7 +175,11 @@ impl Service {
             .bearer_auth(&self.user_token)
             .send()
             .expect("GET");
-        assert!(response.status().is_success(), "GET {path}: {}", response.status());
+        assert!(
+            response.status().is_success(),
+            "GET {path}: {}",
+            response.status()
+        );
         response.json().expect("JSON reply")
     }
 

@@ -1,0 +1,205 @@
+//! A campaign through the real server: the paper replayed with the `table_lookup` kind (a test
+//! aid; responses come from the paper's Tables 3, 5 and 6, verification runs from its Eq. 16),
+//! run by an in-test worker over HTTP, with a server restart in the middle.
+
+mod common;
+
+#[allow(dead_code, unused_imports)]
+#[path = "../../campaign/tests/common/mod.rs"]
+mod paper;
+
+use common::{temp_db, TestServer};
+use paper::{eq16, lookup_template, table3_rows, table5_rows, table6_rows, PB_LEVELS};
+use repose_api::{ClaimResponse, Completion};
+use repose_experiments::aor::Control;
+use repose_experiments::catalog::{run_experiment, ExperimentError};
+use reqwest::StatusCode;
+use serde_json::{json, Value};
+use uuid::Uuid;
+
+/// The paper's campaign as a request: Table 3 as the (explicit) screening design, Table 2
+/// ranges, N6 held at 0.50 as in the paper.
+fn paper_campaign() -> Value {
+    let table3 = table3_rows();
+    let points: Vec<Vec<f64>> = table3
+        .iter()
+        .map(|r| PB_LEVELS.iter().map(|(n, _, _)| r[*n]).collect())
+        .collect();
+    let factors: Vec<Value> = PB_LEVELS
+        .iter()
+        .map(|(n, lo, hi)| {
+            let mut f = json!({"name": n, "path": format!("values.{n}"), "low": lo, "high": hi});
+            if *n == "N6" {
+                f["fixed_at"] = json!(0.50);
+            }
+            f
+        })
+        .collect();
+    json!({
+        "name": "paper replay via the server",
+        "experiment": lookup_template(&table3),
+        "stage_experiments": {
+            "screening": lookup_template(&table3),
+            "steepest": lookup_template(&table5_rows()),
+            "response_surface": lookup_template(&table6_rows()),
+            "verification": lookup_template(&table6_rows()),
+        },
+        "factors": factors,
+        "target": 34.85,
+        "seed": 2026,
+        "screening": {"design": {"type": "explicit", "points": points}},
+    })
+}
+
+/// The test worker's answer: the replay table, or for a point the paper never ran (the
+/// verification point) the paper's fitted Eq. 16 with a seed-dependent deviation of ±0.5°.
+fn answer(job: &ClaimResponse) -> Completion {
+    let metrics = match run_experiment(&job.kind, &job.spec, job.seed, &mut |_| Control::Continue) {
+        Ok(outcome) => outcome.metrics,
+        Err(ExperimentError::NoResult { .. }) => {
+            let values = &job.spec["values"];
+            let point: Vec<f64> = ["N2", "N3", "N5"]
+                .iter()
+                .map(|n| values[*n].as_f64().unwrap())
+                .collect();
+            let deviation = [-0.5, 0.1, 0.4][(job.seed % 3) as usize];
+            [("angle_deg".to_owned(), eq16(&point) + deviation)].into()
+        }
+        Err(other) => panic!("replay failed: {other}"),
+    };
+    Completion {
+        lease_token: job.lease_token,
+        metrics,
+        wall_time_s: 0.0,
+        details: json!({"worker": "test replay"}),
+    }
+}
+
+/// Claims and answers jobs until none arrives within `idle_s`; returns how many it did.
+async fn work(server: &TestServer, idle_s: f64) -> usize {
+    let worker = server.register().await;
+    let mut done = 0;
+    while let Some(job) = server.claim(worker, idle_s).await {
+        let completion = answer(&job);
+        let (status, body) = server
+            .post(
+                &format!("/v1/jobs/{}/complete", job.job_id),
+                &serde_json::to_value(completion).unwrap(),
+            )
+            .await;
+        assert_eq!(status, StatusCode::OK, "{body}");
+        done += 1;
+    }
+    done
+}
+
+async fn campaign(server: &TestServer, id: Uuid) -> Value {
+    let (status, body) = server.get(&format!("/v1/campaigns/{id}")).await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    body
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_paper_replayed_as_a_campaign_through_the_server_survives_a_restart() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let (status, created) = server.post("/v1/campaigns", &paper_campaign()).await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    let id: Uuid = serde_json::from_value(created["id"].clone()).unwrap();
+
+    // Screening only, then a restart: the campaign must continue from the database.
+    let worker = server.register().await;
+    let mut screened = 0;
+    while screened < 12 {
+        let job = server.claim(worker, 5.0).await.expect("screening job");
+        let completion = answer(&job);
+        let (status, body) = server
+            .post(
+                &format!("/v1/jobs/{}/complete", job.job_id),
+                &serde_json::to_value(completion).unwrap(),
+            )
+            .await;
+        assert_eq!(status, StatusCode::OK, "{body}");
+        screened += 1;
+    }
+    server.stop().await;
+    let server = TestServer::start(&db, |_| {}).await;
+
+    for _ in 0..20 {
+        work(&server, 1.0).await;
+        let view = campaign(&server, id).await;
+        if view["status"] != "running" {
+            break;
+        }
+    }
+    let view = campaign(&server, id).await;
+    assert_eq!(view["status"], "finished", "{view:#}");
+    let decisions: Vec<&str> = view["decisions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["text"].as_str().unwrap())
+        .collect();
+    let all = decisions.join("\n");
+    for factor in ["N2", "N3", "N5"] {
+        assert!(all.contains(factor), "{all}");
+    }
+    let stages: Vec<&str> = view["batch_list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["stage"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        stages.first().copied(),
+        Some("screening"),
+        "batches: {stages:?}"
+    );
+    assert!(stages.contains(&"steepest"), "{stages:?}");
+    assert!(stages.contains(&"verification"), "{stages:?}");
+    let result = &view["result"];
+    assert_eq!(result["within_tolerance"], true, "{result:#}");
+
+    // The report: self-contained HTML with the ANOVA, and its JSON form.
+    let (status, html) = server.get_text(&format!("/v1/campaigns/{id}/report")).await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(
+        html.contains("<html") && html.contains("Lack of Fit") && html.contains("Provenance"),
+        "{}",
+        &html[..html.len().min(400)]
+    );
+    let (status, json_report) = server
+        .get(&format!("/v1/campaigns/{id}/report?format=json"))
+        .await;
+    assert_eq!(status, StatusCode::OK, "{json_report}");
+    assert!(json_report.is_object());
+
+    let (status, list) = server.get("/v1/campaigns").await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(list.as_array().unwrap().len(), 1);
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bad_campaign_is_a_422_naming_the_field_and_unknown_ids_are_404() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let mut bad = paper_campaign();
+    bad["factors"][1]["low"] = json!(0.9);
+    let (status, body) = server.post("/v1/campaigns", &bad).await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(
+        body["field"]
+            .as_str()
+            .unwrap_or_default()
+            .starts_with("factors[1]"),
+        "{body}"
+    );
+    let (status, _) = server
+        .get(&format!("/v1/campaigns/{}", Uuid::new_v4()))
+        .await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    let (status, _) = server.get("/v1/campaigns/not-a-uuid").await;
+    assert_eq!(status, StatusCode::BAD_REQUEST);
+    server.stop().await;
+}
