@@ -7,7 +7,9 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use repose_api::{ApiError, BatchCreated, BatchState, BatchStatus, BatchSummary};
+use repose_api::{
+    ApiError, BatchCreated, BatchState, BatchStatus, BatchSummary, CampaignCreated, CampaignView,
+};
 use reqwest::StatusCode;
 use serde::de::DeserializeOwned;
 use uuid::Uuid;
@@ -46,6 +48,17 @@ pub struct StatusArgs {
 }
 
 #[derive(Debug, Args)]
+pub struct CampaignArgs {
+    /// Campaign file (JSON, a `CampaignRequest`; see examples/campaigns/).
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub server: ServerArgs,
+    /// Follow the campaign, printing its decisions as they are taken, until it ends.
+    #[arg(long)]
+    pub watch: bool,
+}
+
+#[derive(Debug, Args)]
 pub struct WatchArgs {
     /// Batch to follow.
     pub batch: Uuid,
@@ -76,6 +89,11 @@ impl UserClient {
             base: server.trim_end_matches('/').to_owned(),
             token,
         })
+    }
+
+    /// The server's base URL.
+    pub fn base(&self) -> &str {
+        &self.base
     }
 
     fn request(&self, method: reqwest::Method, path: &str) -> reqwest::RequestBuilder {
@@ -115,6 +133,44 @@ impl UserClient {
                 .json(batch),
         )
         .await
+    }
+
+    /// Starts a campaign (the server validates the document).
+    pub async fn start_campaign(&self, campaign: &serde_json::Value) -> Result<CampaignCreated> {
+        self.expect(
+            self.request(reqwest::Method::POST, "/v1/campaigns")
+                .json(campaign),
+        )
+        .await
+    }
+
+    pub async fn campaign(&self, id: Uuid) -> Result<CampaignView> {
+        self.expect(self.request(reqwest::Method::GET, &format!("/v1/campaigns/{id}")))
+            .await
+    }
+
+    /// Follows a campaign to its end, printing each new decision once; returns the final view.
+    pub async fn follow_campaign(&self, id: Uuid, interval: Duration) -> Result<CampaignView> {
+        let bar = progress_bar(false);
+        bar.set_length(100);
+        let mut printed = 0;
+        loop {
+            let view = self.campaign(id).await?;
+            for decision in view.decisions.iter().skip(printed) {
+                bar.println(format!("[{}] {}", decision.stage, decision.text));
+            }
+            printed = view.decisions.len();
+            bar.set_position(view.stage_percent_done.unwrap_or(0.0).round() as u64);
+            bar.set_message(format!(
+                "campaign {}: stage {}, batch {}",
+                view.summary.status, view.summary.stage, view.summary.batches
+            ));
+            if view.summary.status != "running" {
+                bar.finish_and_clear();
+                return Ok(view);
+            }
+            tokio::time::sleep(interval).await;
+        }
     }
 
     pub async fn batches(&self) -> Result<Vec<BatchSummary>> {
@@ -251,6 +307,44 @@ pub fn submit(args: &SubmitArgs) -> Result<()> {
         }
         Ok(())
     })
+}
+
+pub fn campaign(args: &CampaignArgs) -> Result<()> {
+    let document = read_batch_file(&args.file)?;
+    let client = UserClient::new(&args.server.server, args.server.token.clone())?;
+    runtime()?.block_on(async {
+        let created = client.start_campaign(&document).await?;
+        println!("{} (first batch {})", created.id, created.first_batch);
+        if args.watch {
+            let view = client
+                .follow_campaign(created.id, Duration::from_secs(1))
+                .await?;
+            print_campaign_end(&view, &args.server.server);
+        }
+        Ok(())
+    })
+}
+
+/// The end of a campaign in a few lines: status, calibrated values, where the report is.
+pub fn print_campaign_end(view: &CampaignView, server: &str) {
+    println!(
+        "campaign {} {}: {} batches",
+        view.summary.id, view.summary.status, view.summary.batches
+    );
+    if let Some(reason) = &view.reason {
+        println!("needs attention: {reason}");
+    }
+    if let Some(result) = &view.result {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(result).unwrap_or_default()
+        );
+    }
+    println!(
+        "report: {}/v1/campaigns/{}/report (HTML; ?format=json)",
+        server.trim_end_matches('/'),
+        view.summary.id
+    );
 }
 
 pub fn status(args: &StatusArgs) -> Result<()> {

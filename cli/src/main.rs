@@ -54,6 +54,9 @@ enum Command {
     Status(client::StatusArgs),
     /// Follow a batch with a progress bar and print its analysis when it finishes.
     Watch(client::WatchArgs),
+    /// Start a calibration campaign (screening → steepest ascent → response surface → optimum →
+    /// verification) from a JSON file.
+    Campaign(client::CampaignArgs),
 }
 
 /// Log lines (tracing) go to stderr; `RUST_LOG` filters them (else `default_filter`).
@@ -82,6 +85,7 @@ fn main() -> ExitCode {
         Command::Submit(args) => client::submit(&args),
         Command::Status(args) => client::status(&args),
         Command::Watch(args) => client::watch(&args),
+        Command::Campaign(args) => client::campaign(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

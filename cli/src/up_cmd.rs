@@ -38,8 +38,12 @@ pub struct UpArgs {
     /// Batch file to submit once the service is up (repeatable; followed in order).
     #[arg(long, value_name = "FILE")]
     pub submit: Vec<PathBuf>,
-    /// Stop once every submitted batch has finished (default: serve until Ctrl-C).
-    #[arg(long, requires = "submit")]
+    /// Campaign file to start once the service is up (repeatable; followed in order after the
+    /// batches).
+    #[arg(long, value_name = "FILE")]
+    pub campaign: Vec<PathBuf>,
+    /// Stop once every submitted batch and campaign has finished (default: serve until Ctrl-C).
+    #[arg(long)]
     pub exit_when_done: bool,
     /// Keep each run's pictures under DIR/<run id>/.
     #[arg(long)]
@@ -57,6 +61,7 @@ struct UpConfig {
     workers: usize,
     threads: usize,
     submit: Vec<(PathBuf, serde_json::Value)>,
+    campaigns: Vec<(PathBuf, serde_json::Value)>,
     exit_when_done: bool,
     artifacts: Option<PathBuf>,
     tokens_file: PathBuf,
@@ -81,6 +86,14 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         .iter()
         .map(|path| Ok((path.clone(), read_batch_file(path)?)))
         .collect::<Result<Vec<_>>>()?;
+    let campaigns = args
+        .campaign
+        .iter()
+        .map(|path| Ok((path.clone(), read_batch_file(path)?)))
+        .collect::<Result<Vec<_>>>()?;
+    if args.exit_when_done && submit.is_empty() && campaigns.is_empty() {
+        bail!("--exit-when-done needs something to wait for (--submit or --campaign)");
+    }
     let mut server = Config::new(args.db.clone());
     server.listen = args.listen;
     server.lease = Duration::from_secs_f64(args.lease_s);
@@ -94,6 +107,7 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         workers: args.workers,
         threads,
         submit,
+        campaigns,
         exit_when_done: args.exit_when_done,
         artifacts: args.artifacts.clone(),
         tokens_file,
@@ -156,7 +170,7 @@ async fn up(config: UpConfig) -> Result<()> {
         () = crate::server_cmd::shutdown_signal() => (Ok(()), true),
     };
     if outcome.is_ok() && !interrupted && !config.exit_when_done {
-        if !config.submit.is_empty() {
+        if !config.submit.is_empty() || !config.campaigns.is_empty() {
             println!("still serving at {url}; Ctrl-C to stop");
         }
         crate::server_cmd::shutdown_signal().await;
@@ -195,6 +209,20 @@ async fn follow_submissions(client: &UserClient, config: &UpConfig) -> Result<()
         );
         ids.push(created.id);
     }
+    let mut campaign_ids = Vec::new();
+    for (path, document) in &config.campaigns {
+        let created = client
+            .start_campaign(document)
+            .await
+            .with_context(|| format!("starting the campaign {}", path.display()))?;
+        println!(
+            "started campaign {} from {} (first batch {})",
+            created.id,
+            path.display(),
+            created.first_batch
+        );
+        campaign_ids.push(created.id);
+    }
     let mut failed = Vec::new();
     for id in ids {
         let bar = progress_bar(false);
@@ -211,9 +239,18 @@ async fn follow_submissions(client: &UserClient, config: &UpConfig) -> Result<()
             failed.push(id);
         }
     }
+    for id in campaign_ids {
+        let view = client
+            .follow_campaign(id, Duration::from_millis(500))
+            .await?;
+        crate::client::print_campaign_end(&view, client.base());
+        if view.summary.status != "finished" {
+            failed.push(id);
+        }
+    }
     if !failed.is_empty() && config.exit_when_done {
         bail!(
-            "{} batch(es) did not complete every run: {}",
+            "{} batch(es) or campaign(s) did not finish cleanly: {}",
             failed.len(),
             failed
                 .iter()
