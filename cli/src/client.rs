@@ -157,7 +157,13 @@ impl UserClient {
         loop {
             let view = self.campaign(id).await?;
             for decision in view.decisions.iter().skip(printed) {
-                bar.println(format!("[{}] {}", decision.stage, decision.text));
+                let line = format!("[{}] {}", decision.stage, decision.text);
+                // Without a terminal the bar is hidden and would swallow the line.
+                if bar.is_hidden() {
+                    println!("{line}");
+                } else {
+                    bar.println(line);
+                }
             }
             printed = view.decisions.len();
             bar.set_position(view.stage_percent_done.unwrap_or(0.0).round() as u64);

@@ -275,3 +275,51 @@ fn submit_status_and_watch_talk_to_the_server() {
         common::stderr(&anonymous)
     );
 }
+
+/// The whole calibration on the real DEM engine, at a resolution CI can afford: three candidate
+/// factors, ≈ 1 150-grain heaps, two worker processes. The campaign must end with a verified
+/// optimum within its tolerance (±10 % at this resolution).
+#[test]
+fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 60.0);
+    let _a = service.start_worker("worker-a", &[]);
+    let _b = service.start_worker("worker-b", &[]);
+    let campaign = json!({
+        "name": "CI calibration",
+        "experiment": {"kind": "aor", "preset": "fast", "spec": {"total_mass": 0.025}},
+        "factors": [
+            {"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.4, "high": 0.6},
+            {"name": "mu_r", "path": "soil_soil.rolling_friction", "low": 0.15, "high": 0.4},
+            {"name": "mu_w", "path": "soil_steel.static_friction", "low": 0.3, "high": 0.6}
+        ],
+        "target": 30.0,
+        "tolerance": {"relative_pct": 10},
+        "seed": 7,
+        "screening": {"design": {"type": "factorial"}},
+        "steepest": {"points_per_dispatch": 4, "max_points": 8},
+        "response_surface": {"design": {"type": "box_behnken", "centre_points": 3}},
+        "verification": {"replicates": 2}
+    });
+    let created = service.post("/v1/campaigns", &campaign);
+    let id = created["id"].as_str().unwrap().to_owned();
+    let deadline = std::time::Instant::now() + Duration::from_secs(1500);
+    let view = loop {
+        let view = service.get(&format!("/v1/campaigns/{id}"));
+        if view["status"] != "running" {
+            break view;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "campaign still running: {view:#}"
+        );
+        std::thread::sleep(Duration::from_secs(1));
+    };
+    assert_eq!(view["status"], "finished", "{view:#}");
+    let result = &view["result"];
+    assert_eq!(result["within_tolerance"], true, "{view:#}");
+    let error = result["verified_relative_error_pct"].as_f64().unwrap();
+    assert!(error <= 10.0, "{error}");
+    let report = service.get_text(&format!("/v1/campaigns/{id}/report"));
+    assert!(report.contains("Provenance"), "report served");
+}

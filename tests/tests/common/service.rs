@@ -183,6 +183,36 @@ impl Service {
         response.json().expect("JSON reply")
     }
 
+    pub fn get_text(&self, path: &str) -> String {
+        let response = self
+            .http
+            .get(format!("{}{path}", self.url))
+            .bearer_auth(&self.user_token)
+            .send()
+            .expect("GET");
+        assert!(
+            response.status().is_success(),
+            "GET {path}: {}",
+            response.status()
+        );
+        response.text().expect("text reply")
+    }
+
+    /// POST JSON as the user; the reply must be a success.
+    pub fn post(&self, path: &str, body: &Value) -> Value {
+        let response = self
+            .http
+            .post(format!("{}{path}", self.url))
+            .bearer_auth(&self.user_token)
+            .json(body)
+            .send()
+            .expect("POST");
+        let status = response.status();
+        let reply: Value = response.json().expect("JSON reply");
+        assert!(status.is_success(), "POST {path}: {status} {reply}");
+        reply
+    }
+
     pub fn submit(&self, batch: &Value) -> String {
         let response = self
             .http
