@@ -19,38 +19,7 @@ use repose_campaign::{
 use serde_json::json;
 
 fn paper_request() -> CampaignRequest {
-    let table3 = table3_rows();
-    // The screening design is Table 3 itself, in natural units and in the paper's factor order.
-    let points: Vec<Vec<f64>> = table3
-        .iter()
-        .map(|r| PB_LEVELS.iter().map(|(n, _, _)| r[*n]).collect())
-        .collect();
-    let factors: Vec<serde_json::Value> = PB_LEVELS
-        .iter()
-        .map(|(n, lo, hi)| {
-            let mut f = json!({"name": n, "path": format!("values.{n}"), "low": lo, "high": hi});
-            if *n == "N6" {
-                // The paper holds N6 at 0.50 (outside Table 2's 0.1..0.4); N1 and N4 at mid-range.
-                f["fixed_at"] = json!(0.50);
-            }
-            f
-        })
-        .collect();
-    serde_json::from_value(json!({
-        "name": "paper replay",
-        "experiment": lookup_template(&table3),
-        "stage_experiments": {
-            "screening": lookup_template(&table3),
-            "steepest": lookup_template(&table5_rows()),
-            "response_surface": lookup_template(&table6_rows()),
-            "verification": lookup_template(&table6_rows()),
-        },
-        "factors": factors,
-        "target": 34.85,
-        "seed": 2026,
-        "screening": {"design": {"type": "explicit", "points": points}},
-    }))
-    .expect("request parses")
+    serde_json::from_value(paper_campaign_json("paper replay")).expect("request parses")
 }
 
 /// Adds the synthetic verification rows (Eq. 16 at the requested point) to the batch's table.

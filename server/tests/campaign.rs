@@ -9,7 +9,7 @@ mod common;
 mod paper;
 
 use common::{temp_db, TestServer};
-use paper::{eq16, lookup_template, table3_rows, table5_rows, table6_rows, PB_LEVELS};
+use paper::{eq16, paper_campaign_json};
 use repose_api::{ClaimResponse, Completion};
 use repose_experiments::aor::Control;
 use repose_experiments::catalog::{run_experiment, ExperimentError};
@@ -17,38 +17,8 @@ use reqwest::StatusCode;
 use serde_json::{json, Value};
 use uuid::Uuid;
 
-/// The paper's campaign as a request: Table 3 as the (explicit) screening design, Table 2
-/// ranges, N6 held at 0.50 as in the paper.
 fn paper_campaign() -> Value {
-    let table3 = table3_rows();
-    let points: Vec<Vec<f64>> = table3
-        .iter()
-        .map(|r| PB_LEVELS.iter().map(|(n, _, _)| r[*n]).collect())
-        .collect();
-    let factors: Vec<Value> = PB_LEVELS
-        .iter()
-        .map(|(n, lo, hi)| {
-            let mut f = json!({"name": n, "path": format!("values.{n}"), "low": lo, "high": hi});
-            if *n == "N6" {
-                f["fixed_at"] = json!(0.50);
-            }
-            f
-        })
-        .collect();
-    json!({
-        "name": "paper replay via the server",
-        "experiment": lookup_template(&table3),
-        "stage_experiments": {
-            "screening": lookup_template(&table3),
-            "steepest": lookup_template(&table5_rows()),
-            "response_surface": lookup_template(&table6_rows()),
-            "verification": lookup_template(&table6_rows()),
-        },
-        "factors": factors,
-        "target": 34.85,
-        "seed": 2026,
-        "screening": {"design": {"type": "explicit", "points": points}},
-    })
+    paper_campaign_json("paper replay via the server")
 }
 
 /// The test worker's answer: the replay table, or for a point the paper never ran (the
@@ -75,11 +45,15 @@ fn answer(job: &ClaimResponse) -> Completion {
     }
 }
 
-/// Claims and answers jobs until none arrives within `idle_s`; returns how many it did.
-async fn work(server: &TestServer, idle_s: f64) -> usize {
+/// Claims and answers jobs until none arrives within `idle_s` or `max_jobs` are done; returns
+/// how many it did.
+async fn work(server: &TestServer, idle_s: f64, max_jobs: usize) -> usize {
     let worker = server.register().await;
     let mut done = 0;
-    while let Some(job) = server.claim(worker, idle_s).await {
+    while done < max_jobs {
+        let Some(job) = server.claim(worker, idle_s).await else {
+            break;
+        };
         let completion = answer(&job);
         let (status, body) = server
             .post(
@@ -108,25 +82,16 @@ async fn the_paper_replayed_as_a_campaign_through_the_server_survives_a_restart(
     let id: Uuid = serde_json::from_value(created["id"].clone()).unwrap();
 
     // Screening only, then a restart: the campaign must continue from the database.
-    let worker = server.register().await;
-    let mut screened = 0;
-    while screened < 12 {
-        let job = server.claim(worker, 5.0).await.expect("screening job");
-        let completion = answer(&job);
-        let (status, body) = server
-            .post(
-                &format!("/v1/jobs/{}/complete", job.job_id),
-                &serde_json::to_value(completion).unwrap(),
-            )
-            .await;
-        assert_eq!(status, StatusCode::OK, "{body}");
-        screened += 1;
-    }
+    assert_eq!(
+        work(&server, 5.0, 12).await,
+        12,
+        "the screening batch has 12 runs"
+    );
     server.stop().await;
     let server = TestServer::start(&db, |_| {}).await;
 
     for _ in 0..20 {
-        work(&server, 1.0).await;
+        work(&server, 1.0, usize::MAX).await;
         let view = campaign(&server, id).await;
         if view["status"] != "running" {
             break;

@@ -249,3 +249,39 @@ pub fn eq16(natural: &[f64]) -> f64 {
         - 5.083 * b * b
         + 0.4070 * d * d
 }
+
+/// The paper's campaign as a request document: Table 3 itself as the (explicit) screening
+/// design, in natural units and the paper's factor order; Table 2 ranges; each stage looks its
+/// responses up in its own table. The paper holds N6 at 0.50 (outside Table 2's 0.1..0.4),
+/// N1 and N4 at mid-range.
+pub fn paper_campaign_json(name: &str) -> Value {
+    let table3 = table3_rows();
+    let points: Vec<Vec<f64>> = table3
+        .iter()
+        .map(|r| PB_LEVELS.iter().map(|(n, _, _)| r[*n]).collect())
+        .collect();
+    let factors: Vec<Value> = PB_LEVELS
+        .iter()
+        .map(|(n, lo, hi)| {
+            let mut f = json!({"name": n, "path": format!("values.{n}"), "low": lo, "high": hi});
+            if *n == "N6" {
+                f["fixed_at"] = json!(0.50);
+            }
+            f
+        })
+        .collect();
+    json!({
+        "name": name,
+        "experiment": lookup_template(&table3),
+        "stage_experiments": {
+            "screening": lookup_template(&table3),
+            "steepest": lookup_template(&table5_rows()),
+            "response_surface": lookup_template(&table6_rows()),
+            "verification": lookup_template(&table6_rows()),
+        },
+        "factors": factors,
+        "target": 34.85,
+        "seed": 2026,
+        "screening": {"design": {"type": "explicit", "points": points}},
+    })
+}

@@ -169,18 +169,7 @@ impl Service {
     }
 
     pub fn get(&self, path: &str) -> Value {
-        let response = self
-            .http
-            .get(format!("{}{path}", self.url))
-            .bearer_auth(&self.user_token)
-            .send()
-            .expect("GET");
-        assert!(
-            response.status().is_success(),
-            "GET {path}: {}",
-            response.status()
-        );
-        response.json().expect("JSON reply")
+        serde_json::from_str(&self.get_text(path)).expect("JSON reply")
     }
 
     pub fn get_text(&self, path: &str) -> String {
