@@ -11,10 +11,11 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use crate::aor::{run_aor, AorSpec, Control, RunStatus};
+use crate::drill::{run_drill, DrillError, DrillSpec, DrillStatus};
 use crate::replay::{ReplayError, ReplaySpec};
 
 /// Kinds understood by [`run_experiment`].
-pub const KINDS: [&str; 2] = ["aor", "table_lookup"];
+pub const KINDS: [&str; 3] = ["aor", "drill", "table_lookup"];
 
 /// Why a spec cannot be used or a run could not produce a result.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -67,6 +68,7 @@ pub struct Outcome {
 pub fn presets(kind: &str) -> Result<&'static [&'static str], ExperimentError> {
     match kind {
         "aor" => Ok(&crate::aor::PRESETS),
+        "drill" => Ok(&crate::drill::PRESETS),
         "table_lookup" => Ok(&[]),
         other => Err(unknown_kind(other)),
     }
@@ -94,6 +96,18 @@ pub fn prepare_spec(
             let spec = parse_aor(&merged)?;
             Ok(serde_json::to_value(spec).expect("AorSpec serialises"))
         }
+        "drill" => {
+            let base = DrillSpec::preset(preset.unwrap_or("default")).map_err(|_| {
+                ExperimentError::UnknownPreset {
+                    kind: kind.into(),
+                    preset: preset.unwrap_or_default().into(),
+                    valid: crate::drill::PRESETS.join(", "),
+                }
+            })?;
+            let base = serde_json::to_value(base).expect("DrillSpec serialises");
+            let spec = parse_drill(&merge_json(base, overrides.clone()))?;
+            Ok(serde_json::to_value(spec).expect("DrillSpec serialises"))
+        }
         "table_lookup" => {
             if let Some(preset) = preset {
                 return Err(ExperimentError::UnknownPreset {
@@ -113,6 +127,7 @@ pub fn prepare_spec(
 pub fn validate_spec(kind: &str, spec: &Value) -> Result<(), ExperimentError> {
     match kind {
         "aor" => parse_aor(spec).map(drop),
+        "drill" => parse_drill(spec).map(drop),
         "table_lookup" => parse_replay(spec).map(drop),
         other => Err(unknown_kind(other)),
     }
@@ -191,6 +206,40 @@ pub fn run_experiment(
                 hold_s: 0.0,
             })
         }
+        "drill" => {
+            let mut spec = parse_drill(spec)?;
+            spec.seed = seed;
+            let run = run_drill(&spec, &mut |p| progress(p.fraction)).map_err(|e| match e {
+                DrillError::Cancelled => ExperimentError::Cancelled,
+                other => ExperimentError::InvalidSpec {
+                    path: None,
+                    message: other.to_string(),
+                },
+            })?;
+            let details = serde_json::to_value(&run.result).expect("DrillResult serialises");
+            match run.result.status {
+                DrillStatus::Ok | DrillStatus::NotSettled => {}
+                DrillStatus::Cancelled => return Err(ExperimentError::Cancelled),
+                status => {
+                    return Err(ExperimentError::NoResult {
+                        message: format!(
+                            "drilling run ended {status:?}: {}",
+                            run.result.message.as_deref().unwrap_or("no hole measured")
+                        ),
+                        details,
+                    })
+                }
+            }
+            Ok(Outcome {
+                metrics: run.result.metrics(),
+                details,
+                pictures: vec![
+                    ("section.svg".to_owned(), run.section_svg()),
+                    ("forces.svg".to_owned(), run.forces_svg()),
+                ],
+                hold_s: 0.0,
+            })
+        }
         "table_lookup" => {
             let spec = parse_replay(spec)?;
             if progress(0.0) == Control::Cancel {
@@ -228,6 +277,22 @@ fn parse_aor(spec: &Value) -> Result<AorSpec, ExperimentError> {
     spec.validate().map_err(|e| ExperimentError::InvalidSpec {
         path: match &e {
             crate::aor::SpecError::Invalid { path, .. } => Some(path.clone()),
+            _ => None,
+        },
+        message: e.to_string(),
+    })?;
+    Ok(spec)
+}
+
+fn parse_drill(spec: &Value) -> Result<DrillSpec, ExperimentError> {
+    let spec: DrillSpec =
+        serde_json::from_value(spec.clone()).map_err(|e| ExperimentError::InvalidSpec {
+            path: None,
+            message: format!("not a valid drill spec: {e}"),
+        })?;
+    spec.validate().map_err(|e| ExperimentError::InvalidSpec {
+        path: match &e {
+            crate::drill::SpecError::Invalid { path, .. } => Some(path.clone()),
             _ => None,
         },
         message: e.to_string(),
@@ -313,6 +378,21 @@ mod tests {
             prepare_spec("cook", None, &json!({})),
             Err(ExperimentError::UnknownKind { .. })
         ));
+    }
+
+    #[test]
+    fn drill_specs_complete_from_their_preset_and_share_the_aor_factor_paths() {
+        let spec = prepare_spec(
+            "drill",
+            Some("fast"),
+            &json!({"soil_soil": {"static_friction": 0.5}}),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["static_friction"], json!(0.5));
+        validate_spec("drill", &spec).unwrap();
+        let mut bad = spec.clone();
+        bad["soil_soil"]["rolling_friction"] = json!(-1.0);
+        assert!(validate_spec("drill", &bad).is_err());
     }
 
     #[test]

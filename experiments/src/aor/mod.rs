@@ -49,6 +49,7 @@ pub use run::{
     run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy, GrainBudget, Progress,
     RunStatus, SettleCheck,
 };
+pub(crate) use spec::check_contacts;
 pub use spec::{
     AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, MaterialProps, Materials, Protocol,
     RollingSpec, SettleSpec, SpecError, PRESETS,

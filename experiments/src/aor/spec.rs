@@ -514,45 +514,8 @@ impl AorSpec {
                 Err(invalid(path, format!("must be finite and > 0, got {v}")))
             }
         };
-        for (name, pair) in [
-            ("soil_soil", &self.soil_soil),
-            ("soil_steel", &self.soil_steel),
-        ] {
-            let e = pair.restitution;
-            if !(e > 0.0 && e <= 1.0) {
-                return Err(invalid(
-                    &format!("{name}.restitution"),
-                    format!("must be in (0, 1], got {e}"),
-                ));
-            }
-            for (field, v) in [
-                ("static_friction", pair.static_friction),
-                ("rolling_friction", pair.rolling_friction),
-            ] {
-                if !(v.is_finite() && v >= 0.0) {
-                    return Err(invalid(
-                        &format!("{name}.{field}"),
-                        format!("must be finite and >= 0, got {v}"),
-                    ));
-                }
-            }
-        }
-        for (name, m) in [
-            ("soil", &self.materials.soil),
-            ("steel", &self.materials.steel),
-        ] {
-            positive(&format!("materials.{name}.density"), m.density)?;
-            positive(
-                &format!("materials.{name}.youngs_modulus"),
-                m.youngs_modulus,
-            )?;
-            if !(m.poisson > -1.0 && m.poisson < 0.5) {
-                return Err(invalid(
-                    &format!("materials.{name}.poisson"),
-                    format!("must be in (-1, 0.5), got {}", m.poisson),
-                ));
-            }
-        }
+        check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)
+            .map_err(|(path, reason)| invalid(&path, reason))?;
         positive("total_mass", self.total_mass)?;
         positive("mass_rate", self.mass_rate)?;
         positive("time_cap", self.time_cap)?;
@@ -632,4 +595,52 @@ impl AorSpec {
         }
         Ok(())
     }
+}
+
+/// Checks the contact coefficients and bulk properties both soil experiments share (the engine
+/// would reject them later, without naming the spec field): restitution in (0, 1], frictions
+/// finite and >= 0, density and Young's modulus > 0, Poisson's ratio in (-1, 0.5).
+/// The error is `(dotted path, reason)`.
+pub(crate) fn check_contacts(
+    materials: &Materials,
+    soil_soil: &Interaction,
+    soil_steel: &Interaction,
+) -> Result<(), (String, String)> {
+    for (name, pair) in [("soil_soil", soil_soil), ("soil_steel", soil_steel)] {
+        let e = pair.restitution;
+        if !(e > 0.0 && e <= 1.0) {
+            return Err((
+                format!("{name}.restitution"),
+                format!("must be in (0, 1], got {e}"),
+            ));
+        }
+        for (field, v) in [
+            ("static_friction", pair.static_friction),
+            ("rolling_friction", pair.rolling_friction),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((
+                    format!("{name}.{field}"),
+                    format!("must be finite and >= 0, got {v}"),
+                ));
+            }
+        }
+    }
+    for (name, m) in [("soil", &materials.soil), ("steel", &materials.steel)] {
+        for (field, v) in [("density", m.density), ("youngs_modulus", m.youngs_modulus)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((
+                    format!("materials.{name}.{field}"),
+                    format!("must be finite and > 0, got {v}"),
+                ));
+            }
+        }
+        if !(m.poisson > -1.0 && m.poisson < 0.5) {
+            return Err((
+                format!("materials.{name}.poisson"),
+                format!("must be in (-1, 0.5), got {}", m.poisson),
+            ));
+        }
+    }
+    Ok(())
 }

@@ -477,6 +477,8 @@ impl DrillSpec {
                 Err(invalid(path, format!("must be finite and >= 0, got {v}")))
             }
         };
+        crate::aor::check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)
+            .map_err(|(path, reason)| invalid(&path, reason))?;
         positive("bin.size_x", self.bin.size_x)?;
         positive("bin.size_y", self.bin.size_y)?;
         positive("bin.height", self.bin.height)?;
