@@ -6,6 +6,7 @@ mod aor_cmd;
 mod bench_cmd;
 mod client;
 mod design_cmd;
+mod drill_cmd;
 mod levels;
 mod server_cmd;
 mod sim;
@@ -40,6 +41,8 @@ enum Command {
     Bench(bench_cmd::BenchArgs),
     /// Angle-of-repose virtual experiment (funnel or lifted cylinder), measured automatically.
     Aor(aor_cmd::AorArgs),
+    /// Drilling (pore-forming) virtual experiment: hole opening diameter, effective depth, torque.
+    Drill(drill_cmd::DrillArgs),
     /// Run the job server (REST API, SQLite) until Ctrl-C or SIGTERM.
     Server(server_cmd::ServerArgs),
     /// Create, list and revoke the job server's access tokens (user and worker).
@@ -80,6 +83,7 @@ fn main() -> ExitCode {
         Command::Server(args) => server_cmd::run(&args),
         Command::Token(args) => token_cmd::run(&args),
         Command::Aor(args) => aor_cmd::run(&args),
+        Command::Drill(args) => drill_cmd::run(&args),
         Command::Worker(args) => worker_cmd::run_worker(&args),
         Command::Up(args) => up_cmd::run(&args),
         Command::Submit(args) => client::submit(&args),

@@ -64,8 +64,8 @@ pub struct Progress<'a> {
     pub particles: usize,
 }
 
-/// Overall outcome. Hole metrics are reported for `ok` and `not_settled`; only `ok` feeds
-/// [`DrillResult::metrics`].
+/// Overall outcome. Hole metrics are reported for `ok` and `not_settled` (see
+/// [`DrillResult::metrics`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DrillStatus {
@@ -161,17 +161,27 @@ pub struct DrillResult {
 }
 
 impl DrillResult {
-    /// Scalar results for a job server (empty unless `status` is `ok`): `opening_diameter_mm`,
-    /// `opening_diameter_x_mm`, `opening_diameter_y_mm`, `opening_area_mm2`,
-    /// `effective_depth_mm`, `depth_ratio`, `backfill_ratio`, `rim_height_mm`,
-    /// `peak_torque_nm`, `mean_feed_torque_nm`, `peak_axial_force_n`,
-    /// `mean_feed_axial_force_n`, `energy_j`, `rotation_energy_j`, `feed_energy_j`,
-    /// `simulated_time_s`, `particles`.
+    /// Scalar results for a job server: `opening_diameter_mm`, `opening_diameter_x_mm`,
+    /// `opening_diameter_y_mm`, `opening_area_mm2`, `effective_depth_mm`, `depth_ratio`,
+    /// `backfill_ratio`, `rim_height_mm`, `peak_torque_nm`, `mean_feed_torque_nm`,
+    /// `peak_axial_force_n`, `mean_feed_axial_force_n`, `energy_j`, `rotation_energy_j`,
+    /// `feed_energy_j`, `simulated_time_s`, `particles`, and `came_to_rest` (1 or 0). Like the
+    /// angle-of-repose runs, a run that did not come to rest within the time cap
+    /// (`not_settled`) is measured as it stands and flagged `came_to_rest = 0`; other statuses
+    /// (cancelled, wall-time cap, measurement failed) give no metrics.
     pub fn metrics(&self) -> BTreeMap<String, f64> {
         let mut m = BTreeMap::new();
-        if self.status != DrillStatus::Ok {
+        if !matches!(self.status, DrillStatus::Ok | DrillStatus::NotSettled) {
             return m;
         }
+        m.insert(
+            "came_to_rest".to_owned(),
+            if self.status == DrillStatus::Ok {
+                1.0
+            } else {
+                0.0
+            },
+        );
         let values = [
             ("opening_diameter_mm", self.opening_diameter_mm),
             ("opening_diameter_x_mm", self.opening_diameter_x_mm),

@@ -1,0 +1,168 @@
+//! `repose drill`: the drilling (pore-forming) virtual experiment on the DEM engine: a settled
+//! soil bed, a turning auger fed in and withdrawn, the hole measured.
+//!
+//! Prints the result as JSON (hole lengths in mm: `opening_diameter_mm`, `effective_depth_mm`;
+//! torques in N·m, forces in N, energies in J) and writes `result.json`, `section.svg` (vertical
+//! section through the hole axis), `forces.svg` and `forces.csv` (torque and axial force
+//! against time) into `--out`. With `--bed-cache DIR` the settled bed is stored in DIR under its
+//! key (`<key>.json`) and reused by later runs with the same bed parameters.
+
+use crate::sim::write_file;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use repose_experiments::catalog::merge_json;
+use repose_experiments::drill::{
+    bed_key, build_bed, run_drill_on_bed, Control, DrillSpec, SettledBed,
+};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Args)]
+pub struct DrillArgs {
+    /// Experiment spec (JSON, a `DrillSpec`); fields not given take the preset's values.
+    #[arg(long)]
+    pub spec: Option<PathBuf>,
+    /// Start from a preset: `default` (the paper's auger 120 mm deep, ~17 500 grains, tens of
+    /// minutes), `fast` (40 mm auger, 40 mm deep, ~2 500 grains, seconds) or `full` (the
+    /// paper's bin unscaled: far too large for one machine).
+    #[arg(long, default_value = "default")]
+    pub preset: String,
+    /// Change one field by its dotted path, e.g. `soil_soil.rolling_friction=0.3`,
+    /// `drill.depth=0.08`, `bin.size_x=0.2` (repeatable, applied in order).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Directory for result.json, section.svg, forces.svg, forces.csv (created if missing).
+    #[arg(long, required_unless_present = "print_spec")]
+    pub out: Option<PathBuf>,
+    /// Directory of settled beds (`<bed key>.json`): reused when present, stored when built.
+    #[arg(long)]
+    pub bed_cache: Option<PathBuf>,
+    /// Worker threads (default: all cores). Results are identical for any count.
+    #[arg(long, env = "REPOSE_THREADS")]
+    pub threads: Option<usize>,
+    /// Print the effective spec (after --preset/--spec/--set) as JSON and exit.
+    #[arg(long)]
+    pub print_spec: bool,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+fn effective_spec(args: &DrillArgs) -> Result<DrillSpec> {
+    let mut spec = match &args.spec {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read spec {}", path.display()))?;
+            // Missing fields take the preset's values: merge the file over the preset.
+            let base = serde_json::to_value(DrillSpec::preset(&args.preset)?)?;
+            let given: serde_json::Value = serde_json::from_str(&text)
+                .with_context(|| format!("invalid spec {}", path.display()))?;
+            serde_json::from_value(merge_json(base, given))
+                .with_context(|| format!("invalid spec {}", path.display()))?
+        }
+        None => DrillSpec::preset(&args.preset)?,
+    };
+    spec.apply_assignments(args.set.iter().map(String::as_str))?;
+    spec.validate()?;
+    Ok(spec)
+}
+
+/// The cached bed for `key` in `dir`, if there is a readable one built for that key.
+fn cached_bed(dir: &Path, key: &str) -> Option<SettledBed> {
+    let text = std::fs::read_to_string(dir.join(format!("{key}.json"))).ok()?;
+    let bed: SettledBed = serde_json::from_str(&text).ok()?;
+    (bed.key == key).then_some(bed)
+}
+
+pub fn run(args: &DrillArgs) -> Result<()> {
+    let spec = effective_spec(args)?;
+    if args.print_spec {
+        println!("{}", spec.to_json());
+        return Ok(());
+    }
+    let out = args.out.as_ref().expect("clap requires --out");
+    let threads = match args.threads {
+        Some(0) => bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    if let Some(dir) = &args.bed_cache {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("cannot start the thread pool")?;
+
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(1000)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg}")
+            .expect("valid template"),
+    );
+    let key = bed_key(&spec);
+    let cached = args
+        .bed_cache
+        .as_deref()
+        .and_then(|dir| cached_bed(dir, &key));
+    let reused = cached.is_some();
+    let bed_share = if cached.is_some() { 0.0 } else { 0.25 };
+    let started = std::time::Instant::now();
+    let run = pool.install(|| -> Result<_> {
+        let bed = match cached {
+            Some(bed) => bed,
+            None => {
+                let bed = build_bed(&spec, &mut |p| {
+                    bar.set_position((bed_share * p.fraction * 1000.0) as u64);
+                    bar.set_message(format!(
+                        "bed t={:.3} s, {} grains, kinetic energy {:.1e}",
+                        p.time, p.particles, p.kinetic_energy_ratio
+                    ));
+                    Control::Continue
+                })?;
+                if let Some(dir) = &args.bed_cache {
+                    // Written aside and renamed, so a concurrent reader never sees half a bed.
+                    let path = dir.join(format!("{key}.json"));
+                    let partial = dir.join(format!("{key}.json.{}.partial", std::process::id()));
+                    let json = serde_json::to_string(&bed)?;
+                    write_file(&partial, |w| w.write_all(json.as_bytes()))?;
+                    std::fs::rename(&partial, &path)
+                        .with_context(|| format!("cannot write {}", path.display()))?;
+                }
+                bed
+            }
+        };
+        Ok(run_drill_on_bed(&spec, bed, &mut |p| {
+            let fraction = bed_share + (1.0 - bed_share) * p.fraction;
+            bar.set_position((fraction * 1000.0) as u64);
+            bar.set_message(format!(
+                "{} t={:.3} s, {} grains",
+                p.phase, p.time, p.particles
+            ));
+            Control::Continue
+        })?)
+    })?;
+    bar.finish_and_clear();
+    let mut result = run.result.clone();
+    result.bed.reused = reused;
+    // This command's wall time, the bed included when it was built here.
+    result.wall_time_s = started.elapsed().as_secs_f64();
+
+    let json = serde_json::to_string_pretty(&result)?;
+    write_file(&out.join("result.json"), |w| writeln!(w, "{json}"))?;
+    let section = run.section_svg();
+    write_file(&out.join("section.svg"), |w| {
+        w.write_all(section.as_bytes())
+    })?;
+    let forces = run.forces_svg();
+    write_file(&out.join("forces.svg"), |w| w.write_all(forces.as_bytes()))?;
+    let csv = run.forces_csv();
+    write_file(&out.join("forces.csv"), |w| w.write_all(csv.as_bytes()))?;
+    println!("{json}");
+    Ok(())
+}
