@@ -5,9 +5,11 @@
 //! reaches a user), and a small read-only pool for the status views, which WAL lets run
 //! alongside the writer. Times are Unix milliseconds; JSON documents are stored as TEXT.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 use std::str::FromStr;
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use repose_api::{
@@ -47,11 +49,22 @@ fn duration_ms(duration: Duration) -> i64 {
     i64::try_from(duration.as_millis()).unwrap_or(i64::MAX)
 }
 
+/// Expired leases are looked for by claims at most this often (a claim that finds nothing
+/// re-checks within `CLAIM_RECHECK` anyway), so the hot claim path is usually one statement.
+const EXPIRY_CHECK_INTERVAL_MS: i64 = 100;
+
+/// A worker's `last_seen_at` is rewritten by claims at most this often.
+const LAST_SEEN_RESOLUTION_MS: i64 = 1000;
+
 /// Handle to the database; cheap to clone.
 #[derive(Debug, Clone)]
 pub struct Db {
     writer: SqlitePool,
     reader: SqlitePool,
+    /// Earliest time (Unix ms) the next claim looks for expired leases.
+    next_expiry_check_ms: Arc<AtomicI64>,
+    /// Registered workers and when a claim last wrote their `last_seen_at` (Unix ms).
+    seen_workers: Arc<Mutex<HashMap<Uuid, i64>>>,
 }
 
 /// What the analysis needs to know about a batch.
@@ -131,7 +144,12 @@ impl Db {
             .max_connections(READ_CONNECTIONS)
             .connect_with(options.read_only(true))
             .await?;
-        Ok(Db { writer, reader })
+        Ok(Db {
+            writer,
+            reader,
+            next_expiry_check_ms: Arc::new(AtomicI64::new(0)),
+            seen_workers: Arc::default(),
+        })
     }
 
     /// Closes both pools.
@@ -355,35 +373,78 @@ impl Db {
     ) -> Result<(Option<ClaimResponse>, Vec<Uuid>), AppError> {
         let now = now_ms();
         let mut tx = self.writer.begin().await?;
-        let worker_known = sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
-            .bind(now)
-            .bind(worker_id.to_string())
-            .execute(&mut *tx)
-            .await?
-            .rows_affected()
-            == 1;
-        if !worker_known {
-            return Err(AppError::invalid(
-                "worker_id",
-                format!("worker {worker_id} is not registered; POST /v1/workers/register first"),
-            ));
+        let seen_recently = self
+            .seen_workers
+            .lock()
+            .map(|seen| {
+                seen.get(&worker_id)
+                    .is_some_and(|&at| now - at < LAST_SEEN_RESOLUTION_MS)
+            })
+            .unwrap_or(false);
+        if !seen_recently {
+            let worker_known = sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
+                .bind(now)
+                .bind(worker_id.to_string())
+                .execute(&mut *tx)
+                .await?
+                .rows_affected()
+                == 1;
+            if !worker_known {
+                return Err(AppError::invalid(
+                    "worker_id",
+                    format!(
+                        "worker {worker_id} is not registered; POST /v1/workers/register first"
+                    ),
+                ));
+            }
+            if let Ok(mut seen) = self.seen_workers.lock() {
+                seen.insert(worker_id, now);
+            }
         }
-        let finished = expire_leases(&mut tx, now, max_attempts).await?;
+        let next_check = self.next_expiry_check_ms.load(Ordering::Relaxed);
+        let finished = if now >= next_check
+            && self
+                .next_expiry_check_ms
+                .compare_exchange(
+                    next_check,
+                    now + EXPIRY_CHECK_INTERVAL_MS,
+                    Ordering::Relaxed,
+                    Ordering::Relaxed,
+                )
+                .is_ok()
+        {
+            expire_leases(&mut tx, now, max_attempts).await?
+        } else {
+            Vec::new()
+        };
 
         let token = Uuid::new_v4();
         let expires_at = now + duration_ms(lease);
+        // One round trip: record the lease for the oldest available job, then lease that job
+        // (found through its new lease) and return what the worker needs. Plain `?`
+        // placeholders, bound in order across both statements.
         let claimed = sqlx::query(
-            "UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
-                             lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
+            "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
+             SELECT ?, id, ?, attempts + 1, ? FROM jobs
              WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND available_at <= ?
-                         ORDER BY available_at, rowid LIMIT 1)
-             RETURNING id, run_id, batch_id, attempts",
+                         ORDER BY available_at, rowid LIMIT 1);
+             UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
+                             lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
+             WHERE id = (SELECT job_id FROM leases WHERE token = ?)
+             RETURNING id, run_id, batch_id, attempts,
+                       (SELECT spec FROM runs WHERE runs.id = jobs.run_id) AS spec,
+                       (SELECT seed FROM runs WHERE runs.id = jobs.run_id) AS seed,
+                       (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind",
         )
+        .bind(token.to_string())
+        .bind(worker_id.to_string())
+        .bind(now)
+        .bind(now)
         .bind(token.to_string())
         .bind(expires_at)
         .bind(worker_id.to_string())
         .bind(now)
-        .bind(now)
+        .bind(token.to_string())
         .fetch_optional(&mut *tx)
         .await?;
         let Some(claimed) = claimed else {
@@ -393,36 +454,18 @@ impl Db {
         let job_id: String = claimed.try_get("id")?;
         let run_id: String = claimed.try_get("run_id")?;
         let attempt: i64 = claimed.try_get("attempts")?;
-        sqlx::query(
-            "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
-             VALUES (?, ?, ?, ?, ?)",
-        )
-        .bind(token.to_string())
-        .bind(&job_id)
-        .bind(worker_id.to_string())
-        .bind(attempt)
-        .bind(now)
-        .execute(&mut *tx)
-        .await?;
-        let run = sqlx::query(
-            "SELECT r.spec, r.seed, r.batch_id, b.kind
-             FROM runs r JOIN batches b ON b.id = r.batch_id WHERE r.id = ?",
-        )
-        .bind(&run_id)
-        .fetch_one(&mut *tx)
-        .await?;
         tx.commit().await?;
-        let spec: Value = serde_json::from_str(run.try_get("spec")?)?;
+        let spec: Value = serde_json::from_str(claimed.try_get("spec")?)?;
         Ok((
             Some(ClaimResponse {
                 job_id: parse_uuid(&job_id)?,
                 lease_token: token,
                 lease_expires_in_s: lease.as_secs_f64(),
                 run_id: parse_uuid(&run_id)?,
-                batch_id: parse_uuid(run.try_get("batch_id")?)?,
-                kind: run.try_get("kind")?,
+                batch_id: parse_uuid(claimed.try_get("batch_id")?)?,
+                kind: claimed.try_get("kind")?,
                 spec,
-                seed: run.try_get::<i64, _>("seed")? as u64,
+                seed: claimed.try_get::<i64, _>("seed")? as u64,
                 attempt: attempt as u32,
             }),
             finished,
@@ -526,29 +569,39 @@ impl Db {
         if stored != 1 {
             return Err(AppError::Conflict("the run already has a result".into()));
         }
-        sqlx::query("UPDATE leases SET outcome = 'completed', ended_at = ? WHERE token = ?")
-            .bind(now)
-            .bind(token.to_string())
-            .execute(&mut *tx)
-            .await?;
-        if let (false, Some(other)) = (current, &found.current_token) {
-            // Someone else holds the job now; their work is moot.
-            sqlx::query("UPDATE leases SET outcome = 'superseded', ended_at = ? WHERE token = ?")
-                .bind(now)
-                .bind(other)
-                .execute(&mut *tx)
-                .await?;
-        }
-        sqlx::query(
-            "UPDATE jobs SET state = 'completed', lease_token = NULL, lease_expires_at = NULL,
+        // The rest of the bookkeeping in one round trip to SQLite (the statements run in
+        // order inside this transaction; the last one reports whether the batch finished).
+        // Someone else holding the job now (a late result of an expired lease won): their
+        // lease is superseded, their work moot.
+        let superseded = match (current, &found.current_token) {
+            (false, Some(other)) => Some(other.clone()),
+            _ => None,
+        };
+        let batch_finished: i64 = sqlx::query_scalar(
+            "UPDATE leases SET outcome = 'completed', ended_at = ? WHERE token = ?;
+             UPDATE leases SET outcome = 'superseded', ended_at = ? WHERE token = ?;
+             UPDATE jobs SET state = 'completed', lease_token = NULL, lease_expires_at = NULL,
                              progress = 1, updated_at = ?
-             WHERE id = ?",
+             WHERE id = ?;
+             UPDATE batches SET state = 'completed', finished_at = ?
+             WHERE id = ? AND state = 'active'
+               AND NOT EXISTS (SELECT 1 FROM jobs
+                               WHERE batch_id = ? AND state IN ('queued', 'leased'));
+             SELECT changes();",
         )
+        // Plain `?` placeholders, bound in order across the statements.
+        .bind(now)
+        .bind(token.to_string())
+        .bind(now)
+        .bind(superseded)
         .bind(now)
         .bind(job_id.to_string())
-        .execute(&mut *tx)
+        .bind(now)
+        .bind(&found.batch_id)
+        .bind(&found.batch_id)
+        .fetch_one(&mut *tx)
         .await?;
-        let batch_finished = finish_batch_if_done(&mut tx, &found.batch_id, now).await?;
+        let batch_finished = batch_finished == 1;
         tx.commit().await?;
         Ok(JobUpdate {
             batch_id: parse_uuid(&found.batch_id)?,
