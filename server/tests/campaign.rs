@@ -4,7 +4,7 @@
 
 mod common;
 
-#[allow(dead_code, unused_imports)]
+#[allow(unused_imports)]
 #[path = "../../campaign/tests/common/mod.rs"]
 mod paper;
 
