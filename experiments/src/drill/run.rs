@@ -263,17 +263,14 @@ pub fn run_drill(
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
     let started = Instant::now();
-    let bed = match build_bed(spec, &mut |p| {
+    let bed = build_bed(spec, &mut |p| {
         progress(Progress {
             fraction: 0.25 * p.fraction,
             phase: "bed",
             time: p.time,
             particles: p.particles,
         })
-    }) {
-        Ok(bed) => bed,
-        Err(e) => return Err(e),
-    };
+    })?;
     let mut run = drill(spec, bed, false, &mut |p| {
         progress(Progress {
             fraction: 0.25 + 0.75 * p.fraction,
