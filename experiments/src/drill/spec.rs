@@ -35,6 +35,8 @@
 //! * [`DrillSpec::paper`] (`default`): the paper's 60 mm auger at 400 r/min, fed at 20 mm/s and
 //!   withdrawn at 20 mm/s, but only 100 mm deep (not 600) in a 160 x 160 mm bin filled 140 mm
 //!   deep, with grains of 5.4-6.6 mm diameter (10 across the auger). About 16 000 grains.
+//!   The footprint is not converged for this soil model: the hole's walls slump into a crater
+//!   that reaches back towards the walls (docs/drill.md shows a wider bin reading wider).
 //! * [`DrillSpec::fast`] (`fast`, for tests): a 40 mm auger, 40 mm deep in a 90 x 90 mm bin
 //!   65 mm deep, the same grains, spin and feed three times faster (1200 r/min, 60 mm/s: the
 //!   same advance per turn). About 2 400 grains. (A time step of 30 % of the Rayleigh time
