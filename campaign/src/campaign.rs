@@ -468,11 +468,14 @@ fn coded(factors: &[Factor], natural: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+/// Coded → natural in the weighted form of `Factor::to_natural`, so that coded ±1 land exactly
+/// on `low`/`high` (`centre + c·half_range` gives 0.29999999999999993 for 0.3, which a clamp to
+/// the allowed range then rejects).
 fn natural(factors: &[Factor], coded: &[f64]) -> Vec<f64> {
     factors
         .iter()
         .zip(coded)
-        .map(|(f, c)| f.centre() + c * f.half_range())
+        .map(|(f, c)| 0.5 * ((1.0 - c) * f.low + (1.0 + c) * f.high))
         .collect()
 }
 
@@ -1934,5 +1937,18 @@ fn describe_design(design: &DesignRequest) -> String {
         DesignRequest::BoxBehnken { .. } => "Box–Behnken".into(),
         DesignRequest::CentralComposite { .. } => "central composite".into(),
         DesignRequest::Explicit { points } => format!("{}-run explicit", points.len()),
+    }
+}
+
+#[cfg(test)]
+mod natural_tests {
+    use super::*;
+
+    #[test]
+    fn coded_corners_are_exactly_the_range_ends() {
+        // 0.45 + (-1)(0.15) is 0.29999999999999993 in floating point; the corner must be 0.3.
+        let factors = vec![Factor::new("mu_w", 0.3, 0.6).unwrap()];
+        assert_eq!(natural(&factors, &[-1.0]), vec![0.3]);
+        assert_eq!(natural(&factors, &[1.0]), vec![0.6]);
     }
 }
