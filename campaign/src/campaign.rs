@@ -1237,7 +1237,14 @@ impl Campaign {
         if !(hit || crossing.is_some() || exhausted) {
             return self.dispatch_path().map(Next::Submit);
         }
-        let Some(&(centre, best)) = evaluated
+        // With a crossing, the centre is the nearer of the two steps that bracket it: noise
+        // can make a step beyond the crossing look closer, and centring there would put the
+        // response surface on the wrong side of the target.
+        let candidates: &[(usize, f64)] = match crossing {
+            Some(w) if !hit => w,
+            _ => &evaluated,
+        };
+        let Some(&(centre, best)) = candidates
             .iter()
             .min_by(|a, b| (a.1 - target).abs().total_cmp(&(b.1 - target).abs()))
         else {
@@ -1269,8 +1276,8 @@ impl Campaign {
         let text = if let Some(w) = crossing {
             format!(
                 "Responses along the path: {}. The response crosses the target {} between steps {} \
-                 and {}; step {} is closest ({}, relative error {}%) and becomes the centre of the \
-                 response surface ({}).",
+                 and {}; step {}, the nearer of the two ({}, relative error {}%), becomes the \
+                 centre of the response surface ({}).",
                 responses.join(", "),
                 fmt_num(target),
                 path.points[w[0].0].step,
@@ -1441,8 +1448,9 @@ impl Campaign {
             )
         } else {
             format!(
-                "Response surface round {}: {label} centred at the last optimum with half the \
-                 previous half-ranges, clamped to the allowed ranges: {}; full quadratic model.",
+                "Response surface round {}: {label} centred at the last optimum (half-ranges as \
+                 the verification decided), clamped to the allowed ranges: {}; full quadratic \
+                 model.",
                 self.round + 1,
                 levels.join(", ")
             )
@@ -1729,17 +1737,30 @@ impl Campaign {
         }
         let max = self.request.response_surface.max_extra_rounds;
         if self.round < max {
+            // A target the model could not reach means the region is in the wrong place, not
+            // too coarse: move it (same size) so the optimum on its edge becomes its centre.
+            // Shrinking it there would only box the search in further from the target.
+            let reachable = optimum.desirability > 0.999;
+            let (how, scale) = if reachable {
+                ("with half the half-ranges", 0.5)
+            } else {
+                (
+                    "with the same half-ranges (the target was not reachable inside the last \
+                     region, so the region moves toward it instead of shrinking)",
+                    1.0,
+                )
+            };
             self.decide(
                 StageKind::Verification,
                 format!(
                     "{base} Next step: a further response-surface round centred at this optimum \
-                     with half the half-ranges (round {} of at most {}).",
+                     {how} (round {} of at most {}).",
                     self.round + 2,
                     max + 1
                 ),
             );
             self.round += 1;
-            let half: Vec<f64> = round.factors.iter().map(|f| f.half_range() / 2.0).collect();
+            let half: Vec<f64> = round.half_ranges.iter().map(|h| h * scale).collect();
             return self.start_surface(optimum.natural, half);
         }
         self.decide(StageKind::Verification, base);

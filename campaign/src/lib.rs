@@ -35,7 +35,8 @@
 //!    nearer). Points are clamped to the allowed ranges and the path ends where every factor
 //!    sits at its bound or at `max_points`. `points_per_dispatch` points are sent per batch;
 //!    the stage stops when two consecutive responses bracket the target (or one is within
-//!    tolerance), else the next points are sent. The point closest to the target is the centre.
+//!    tolerance), else the next points are sent. The centre is the nearer of the two points that
+//!    bracket the first crossing (a point within tolerance wins outright).
 //!    Never crossing → the closest point is used anyway and the decision says so.
 //! 3. **Response surface** (`<name>: response surface`): Box–Behnken (5 centre points) by
 //!    default or a CCD, centred on that point with half-ranges = the path steps (at least 5 % of
@@ -47,7 +48,9 @@
 //! 5. **Verification** (`<name>: verification`): an explicit one-point batch at the optimum,
 //!    `verification.replicates` (3) replicates, model `none`, fresh seeds. Accepted if the mean
 //!    is within `tolerance` (`{"relative_pct": 5}` by default, or `{"absolute": x}`). If not,
-//!    a further response-surface round centred at the optimum with half the half-ranges, at most
+//!    a further response-surface round centred at the optimum: with half the half-ranges when
+//!    the target was reachable in the last region, with the same half-ranges (the region moves)
+//!    when it was not; at most
 //!    `response_surface.max_extra_rounds` (2) times; then [`Next::NeedsAttention`].
 //! 6. **Drilling validation** (optional, `<name>: drilling validation`): one explicit batch of
 //!    the drilling experiment at the calibrated parameters (paths remapped by

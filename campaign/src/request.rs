@@ -276,7 +276,8 @@ pub struct SurfaceSettings {
     /// Copies of every design point.
     pub replicates: u32,
     /// Further response-surface rounds allowed after a failed verification (default 2); each is
-    /// centred at the last optimum with half the previous half-ranges.
+    /// centred at the last optimum, with half the previous half-ranges (the target was reachable)
+    /// or the same ones (it was not: the region moves toward it).
     pub max_extra_rounds: u32,
     /// Starting points of the desirability search (default 64).
     pub optimum_starts: usize,

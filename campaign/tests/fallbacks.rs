@@ -191,7 +191,8 @@ fn failed_verification_starts_another_round_then_stops() {
     );
     assert!(campaign.verifications.iter().all(|v| !v.within_tolerance));
     assert_eq!(campaign.surfaces.len(), 3);
-    // Each further round is centred at the previous optimum with half the half-ranges.
+    // The target is reachable, so each further round is centred at the previous optimum with
+    // half the half-ranges.
     for w in campaign.surfaces.windows(2) {
         let prev = w[0].optimum.as_ref().unwrap();
         assert_eq!(w[1].centre, prev.natural);
@@ -257,4 +258,82 @@ fn advance_rejects_a_batch_that_is_not_outstanding() {
         })
         .unwrap_err();
     assert!(err.to_string().contains("expected 0"));
+}
+
+#[test]
+fn a_noisy_path_centres_on_the_bracket_of_the_crossing_not_a_lookalike_beyond_it() {
+    // Along the path the response jumps over the target (20 → 40) and then falls back to 36.5,
+    // which is closer to 34 than 40 but lies beyond the crossing.
+    let truth = |b: &BatchRequest, x: [f64; 4], seed: u64| {
+        if b.name.ends_with("steepest path") {
+            let a = x[0];
+            if a < 0.25 {
+                20.0
+            } else if a < 0.75 {
+                40.0
+            } else {
+                36.5
+            }
+        } else {
+            smooth(x) + noise(seed, 0.05)
+        }
+    };
+    let req = request(json!({"steepest": {"points_per_dispatch": 10, "max_points": 10}}));
+    let (campaign, _, _) = drive(req, &truth, 2);
+    let path = campaign.path.as_ref().unwrap();
+    let responses: Vec<f64> = path.points[..path.dispatched]
+        .iter()
+        .map(|p| p.response.unwrap())
+        .collect();
+    let closest = (0..responses.len())
+        .min_by(|&a, &b| {
+            (responses[a] - 34.0)
+                .abs()
+                .total_cmp(&(responses[b] - 34.0).abs())
+        })
+        .unwrap();
+    let crossing = (0..responses.len() - 1)
+        .find(|&i| (responses[i] - 34.0).signum() != (responses[i + 1] - 34.0).signum())
+        .expect("the path crosses the target");
+    assert!(
+        closest != crossing && closest != crossing + 1,
+        "the set-up needs a closer point outside the bracket: {responses:?}"
+    );
+    let centre = path.centre.unwrap();
+    assert_eq!(responses[centre], 40.0, "{responses:?}");
+    assert!(centre == crossing || centre == crossing + 1);
+    assert!(campaign
+        .decisions
+        .iter()
+        .any(|d| d.text.contains("the nearer of the two")));
+}
+
+#[test]
+fn an_unreachable_target_moves_the_next_region_instead_of_shrinking_it() {
+    // Every response-surface and verification run comes out 15 higher than the screening and
+    // path saw, so the target 34 is never reachable inside a response-surface region.
+    let truth = |b: &BatchRequest, x: [f64; 4], seed: u64| {
+        smooth(x)
+            + noise(seed, 0.05)
+            + if b.name.contains("response surface") || b.name.contains("verification") {
+                15.0
+            } else {
+                0.0
+            }
+    };
+    let (campaign, _, next) = drive(request(json!({})), &truth, 20);
+    assert!(matches!(next, Next::NeedsAttention(_)), "{next:?}");
+    assert_eq!(campaign.surfaces.len(), 3);
+    for w in campaign.surfaces.windows(2) {
+        let prev = w[0].optimum.as_ref().unwrap();
+        assert!(prev.desirability < 0.999, "unreachable: {prev:?}");
+        assert_eq!(w[1].centre, prev.natural);
+        assert_eq!(w[1].half_ranges, w[0].half_ranges, "same size, moved");
+    }
+    // The regions do move: round 2 is not round 1.
+    assert_ne!(campaign.surfaces[1].centre, campaign.surfaces[0].centre);
+    assert!(campaign
+        .decisions
+        .iter()
+        .any(|d| d.text.contains("moves toward it instead of shrinking")));
 }
