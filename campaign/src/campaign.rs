@@ -1237,11 +1237,17 @@ impl Campaign {
         if !(hit || crossing.is_some() || exhausted) {
             return self.dispatch_path().map(Next::Submit);
         }
-        // With a crossing, the centre is the nearer of the two steps that bracket it: noise
-        // can make a step beyond the crossing look closer, and centring there would put the
-        // response surface on the wrong side of the target.
+        // The paper's path stops at the crossing; points beyond it were only run because
+        // several are dispatched at once. They do not compete for the centre: with noise one
+        // of them can look closest and put the response surface past the target.
         let candidates: &[(usize, f64)] = match crossing {
-            Some(w) if !hit => w,
+            Some(w) if !hit => {
+                let end = evaluated
+                    .iter()
+                    .position(|e| e.0 == w[1].0)
+                    .expect("in evaluated");
+                &evaluated[..=end]
+            }
             _ => &evaluated,
         };
         let Some(&(centre, best)) = candidates
@@ -1276,8 +1282,8 @@ impl Campaign {
         let text = if let Some(w) = crossing {
             format!(
                 "Responses along the path: {}. The response crosses the target {} between steps {} \
-                 and {}; step {}, the nearer of the two ({}, relative error {}%), becomes the \
-                 centre of the response surface ({}).",
+                 and {}; step {} is the closest up to the crossing ({}, relative error {}%; later \
+                 steps do not count) and becomes the centre of the response surface ({}).",
                 responses.join(", "),
                 fmt_num(target),
                 path.points[w[0].0].step,

@@ -35,8 +35,9 @@
 //!    nearer). Points are clamped to the allowed ranges and the path ends where every factor
 //!    sits at its bound or at `max_points`. `points_per_dispatch` points are sent per batch;
 //!    the stage stops when two consecutive responses bracket the target (or one is within
-//!    tolerance), else the next points are sent. The centre is the nearer of the two points that
-//!    bracket the first crossing (a point within tolerance wins outright).
+//!    tolerance), else the next points are sent. The point closest to the target up to the first
+//!    crossing is the centre (points beyond it were only run because several are dispatched at
+//!    once; a point within tolerance wins outright).
 //!    Never crossing → the closest point is used anyway and the decision says so.
 //! 3. **Response surface** (`<name>: response surface`): Box–Behnken (5 centre points) by
 //!    default or a CCD, centred on that point with half-ranges = the path steps (at least 5 % of
