@@ -8,3 +8,6 @@ pub mod aor;
 pub mod catalog;
 pub mod drill;
 pub mod replay;
+mod spec_path;
+
+pub use spec_path::SpecError;

@@ -53,50 +53,14 @@
 //! occupy much of the fit band). Expect the `fast` preset to read a few degrees lower than the
 //! default at the same coefficients; compare angles only within one preset.
 
-use std::fmt::Write as _;
-
 use repose_engine::contact::RollingModel;
 use repose_engine::distribution::SizeDistributionSpec;
 use repose_engine::material::{Interaction, Material, MaterialSet};
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 
 use super::measure::MeasureSettings;
-
-/// Why a spec (or a `--set`) is not usable. The message names the path.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum SpecError {
-    /// `path` does not exist; `valid` lists the keys at the level where the walk stopped.
-    #[error("unknown spec path {path:?}: no key {key:?} here (valid keys: {valid})")]
-    UnknownPath {
-        path: String,
-        key: String,
-        valid: String,
-    },
-    /// The path exists but the new value does not fit its type.
-    #[error("cannot set {path:?} to {value}: {reason}")]
-    BadValue {
-        path: String,
-        value: String,
-        reason: String,
-    },
-    /// An assignment was not `key=value`.
-    #[error("expected key=value, got {0:?}")]
-    NotAnAssignment(String),
-    /// A field has an impossible value.
-    #[error("{path}: {reason}")]
-    Invalid { path: String, reason: String },
-    /// Not a valid spec document.
-    #[error("spec is not valid JSON for an AorSpec: {0}")]
-    Parse(String),
-}
-
-fn invalid(path: &str, reason: impl std::fmt::Display) -> SpecError {
-    SpecError::Invalid {
-        path: path.to_owned(),
-        reason: reason.to_string(),
-    }
-}
+pub use crate::spec_path::SpecError;
+use crate::spec_path::{self, invalid};
 
 /// How the heap is formed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -148,6 +112,32 @@ impl Default for Materials {
         Materials {
             soil: props(Material::paper_soil()),
             steel: props(Material::paper_steel()),
+        }
+    }
+}
+
+impl Materials {
+    /// The engine material set (soil = material 0, steel = material 1) with these bulk
+    /// properties and the given contact pairs.
+    pub fn material_set(&self, soil_soil: Interaction, soil_steel: Interaction) -> MaterialSet {
+        let mut set = MaterialSet::paper(soil_soil, soil_steel);
+        for (m, props) in set.materials.iter_mut().zip([self.soil, self.steel]) {
+            m.density = props.density;
+            m.youngs_modulus = props.youngs_modulus;
+            m.poisson = props.poisson;
+        }
+        set
+    }
+}
+
+impl RollingSpec {
+    /// The engine's rolling model (`epsd_viscous_damping` is used by EPSD only).
+    pub fn engine_model(self, epsd_viscous_damping: f64) -> RollingModel {
+        match self {
+            RollingSpec::Cdt => RollingModel::ConstantDirectionalTorque,
+            RollingSpec::Epsd => RollingModel::ElasticPlasticSpringDashpot {
+                viscous_damping: epsd_viscous_damping,
+            },
         }
     }
 }
@@ -414,7 +404,7 @@ impl AorSpec {
 
     /// Parses a JSON spec document.
     pub fn from_json(text: &str) -> Result<AorSpec, SpecError> {
-        serde_json::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))
+        spec_path::parse(text, "an AorSpec")
     }
 
     /// Pretty JSON.
@@ -423,85 +413,30 @@ impl AorSpec {
     }
 
     /// Sets the field at the dotted `path` to `value` (JSON if it parses as JSON, else a string).
-    ///
-    /// Works on the JSON form of the spec, so every field is addressable without a hand-kept
-    /// list: the spec is serialised, the value replaced, and the result deserialised back (which
-    /// type-checks the new value). Unknown paths are an error naming the path and listing the
-    /// valid keys at the level where the walk stopped. The spec is unchanged on error.
+    /// Every field is addressable; unknown paths are an error naming the path and the valid
+    /// keys where the walk stopped. The spec is unchanged on error.
     pub fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError> {
-        let parsed: Value =
-            serde_json::from_str(value).unwrap_or_else(|_| Value::String(value.to_owned()));
-        let mut doc = serde_json::to_value(&*self).expect("an AorSpec always serialises");
-        let mut node = &mut doc;
-        let keys: Vec<&str> = path.split('.').collect();
-        for key in &keys {
-            let Value::Object(map) = node else {
-                return Err(SpecError::UnknownPath {
-                    path: path.to_owned(),
-                    key: (*key).to_owned(),
-                    valid: "(none: the parent is not an object)".into(),
-                });
-            };
-            if !map.contains_key(*key) {
-                let mut valid = String::new();
-                for (i, k) in map.keys().enumerate() {
-                    let _ = write!(valid, "{}{k}", if i > 0 { ", " } else { "" });
-                }
-                return Err(SpecError::UnknownPath {
-                    path: path.to_owned(),
-                    key: (*key).to_owned(),
-                    valid,
-                });
-            }
-            node = map.get_mut(*key).expect("checked");
-        }
-        *node = parsed;
-        let updated: AorSpec = serde_json::from_value(doc).map_err(|e| SpecError::BadValue {
-            path: path.to_owned(),
-            value: value.to_owned(),
-            reason: e.to_string(),
-        })?;
-        *self = updated;
+        *self = spec_path::set_path(&*self, path, value)?;
         Ok(())
     }
 
-    /// Applies `key=value` assignments in order.
+    /// Applies `key=value` assignments in order; on error none is applied.
     pub fn apply_assignments<'a>(
         &mut self,
         assignments: impl IntoIterator<Item = &'a str>,
     ) -> Result<(), SpecError> {
-        for a in assignments {
-            let (key, value) = a
-                .split_once('=')
-                .ok_or_else(|| SpecError::NotAnAssignment(a.to_owned()))?;
-            self.set(key.trim(), value.trim())?;
-        }
+        *self = spec_path::apply_assignments(&*self, assignments)?;
         Ok(())
     }
 
     /// The engine material set (soil = material 0, steel = material 1).
     pub fn material_set(&self) -> MaterialSet {
-        let mut set = MaterialSet::paper(self.soil_soil, self.soil_steel);
-        for (m, props) in set
-            .materials
-            .iter_mut()
-            .zip([self.materials.soil, self.materials.steel])
-        {
-            m.density = props.density;
-            m.youngs_modulus = props.youngs_modulus;
-            m.poisson = props.poisson;
-        }
-        set
+        self.materials.material_set(self.soil_soil, self.soil_steel)
     }
 
     /// The engine rolling model.
     pub fn engine_rolling_model(&self) -> RollingModel {
-        match self.rolling_model {
-            RollingSpec::Cdt => RollingModel::ConstantDirectionalTorque,
-            RollingSpec::Epsd => RollingModel::ElasticPlasticSpringDashpot {
-                viscous_damping: self.epsd_viscous_damping,
-            },
-        }
+        self.rolling_model.engine_model(self.epsd_viscous_damping)
     }
 
     /// Checks what the engine does not check itself (the engine validates materials, meshes and

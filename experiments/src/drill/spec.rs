@@ -46,51 +46,14 @@
 //!   bin, 700 mm bed) at the default grain size: about 1.7 million grains, out of reach on one
 //!   machine; kept so the scaled presets can be described as changes from it.
 
-use std::fmt::Write as _;
-
 use repose_engine::contact::RollingModel;
 use repose_engine::distribution::SizeDistributionSpec;
 use repose_engine::material::{Interaction, MaterialSet};
-use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 
 use crate::aor::{AorSpec, Materials, RollingSpec};
-
-/// Why a spec (or a `--set`) is not usable. The message names the path.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum SpecError {
-    /// `path` does not exist; `valid` lists the keys at the level where the walk stopped.
-    #[error("unknown spec path {path:?}: no key {key:?} here (valid keys: {valid})")]
-    UnknownPath {
-        path: String,
-        key: String,
-        valid: String,
-    },
-    /// The path exists but the new value does not fit its type.
-    #[error("cannot set {path:?} to {value}: {reason}")]
-    BadValue {
-        path: String,
-        value: String,
-        reason: String,
-    },
-    /// An assignment was not `key=value`.
-    #[error("expected key=value, got {0:?}")]
-    NotAnAssignment(String),
-    /// A field has an impossible value.
-    #[error("{path}: {reason}")]
-    Invalid { path: String, reason: String },
-    /// Not a valid spec document.
-    #[error("spec is not valid JSON for a DrillSpec: {0}")]
-    Parse(String),
-}
-
-fn invalid(path: &str, reason: impl std::fmt::Display) -> SpecError {
-    SpecError::Invalid {
-        path: path.to_owned(),
-        reason: reason.to_string(),
-    }
-}
+pub use crate::spec_path::SpecError;
+use crate::spec_path::{self, invalid};
 
 /// The steel soil bin: an open box, floor at z = 0, centred on the drill axis (x = y = 0).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -402,7 +365,7 @@ impl DrillSpec {
 
     /// Parses a JSON spec document.
     pub fn from_json(text: &str) -> Result<DrillSpec, SpecError> {
-        serde_json::from_str(text).map_err(|e| SpecError::Parse(e.to_string()))
+        spec_path::parse(text, "a DrillSpec")
     }
 
     /// Pretty JSON.
@@ -414,47 +377,27 @@ impl DrillSpec {
     /// Unknown paths are an error naming the path and the valid keys where the walk stopped; the
     /// spec is unchanged on error.
     pub fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError> {
-        *self = set_path(&*self, path, value)?;
+        *self = spec_path::set_path(&*self, path, value)?;
         Ok(())
     }
 
-    /// Applies `key=value` assignments in order.
+    /// Applies `key=value` assignments in order; on error none is applied.
     pub fn apply_assignments<'a>(
         &mut self,
         assignments: impl IntoIterator<Item = &'a str>,
     ) -> Result<(), SpecError> {
-        for a in assignments {
-            let (key, value) = a
-                .split_once('=')
-                .ok_or_else(|| SpecError::NotAnAssignment(a.to_owned()))?;
-            self.set(key.trim(), value.trim())?;
-        }
+        *self = spec_path::apply_assignments(&*self, assignments)?;
         Ok(())
     }
 
     /// The engine material set (soil = material 0, steel = material 1).
     pub fn material_set(&self) -> MaterialSet {
-        let mut set = MaterialSet::paper(self.soil_soil, self.soil_steel);
-        for (m, props) in set
-            .materials
-            .iter_mut()
-            .zip([self.materials.soil, self.materials.steel])
-        {
-            m.density = props.density;
-            m.youngs_modulus = props.youngs_modulus;
-            m.poisson = props.poisson;
-        }
-        set
+        self.materials.material_set(self.soil_soil, self.soil_steel)
     }
 
     /// The engine rolling model.
     pub fn engine_rolling_model(&self) -> RollingModel {
-        match self.rolling_model {
-            RollingSpec::Cdt => RollingModel::ConstantDirectionalTorque,
-            RollingSpec::Epsd => RollingModel::ElasticPlasticSpringDashpot {
-                viscous_damping: self.epsd_viscous_damping,
-            },
-        }
+        self.rolling_model.engine_model(self.epsd_viscous_damping)
     }
 
     /// The bed's seed.
@@ -609,44 +552,4 @@ impl DrillSpec {
         positive("measure.series_interval", m.series_interval)?;
         Ok(())
     }
-}
-
-/// `doc` with the field at the dotted `path` replaced by `value` (JSON if it parses, else a
-/// string), type-checked by deserialising the result.
-fn set_path<T: Serialize + DeserializeOwned>(
-    doc: &T,
-    path: &str,
-    value: &str,
-) -> Result<T, SpecError> {
-    let parsed: Value =
-        serde_json::from_str(value).unwrap_or_else(|_| Value::String(value.to_owned()));
-    let mut doc = serde_json::to_value(doc).expect("specs always serialise");
-    let mut node = &mut doc;
-    for key in path.split('.') {
-        let Value::Object(map) = node else {
-            return Err(SpecError::UnknownPath {
-                path: path.to_owned(),
-                key: key.to_owned(),
-                valid: "(none: the parent is not an object)".into(),
-            });
-        };
-        if !map.contains_key(key) {
-            let mut valid = String::new();
-            for (i, k) in map.keys().enumerate() {
-                let _ = write!(valid, "{}{k}", if i > 0 { ", " } else { "" });
-            }
-            return Err(SpecError::UnknownPath {
-                path: path.to_owned(),
-                key: key.to_owned(),
-                valid,
-            });
-        }
-        node = map.get_mut(key).expect("checked");
-    }
-    *node = parsed;
-    serde_json::from_value(doc).map_err(|e| SpecError::BadValue {
-        path: path.to_owned(),
-        value: value.to_owned(),
-        reason: e.to_string(),
-    })
 }
