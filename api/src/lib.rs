@@ -47,6 +47,10 @@ pub struct BatchRequest {
     /// Base seed for run order and per-run seeds; chosen by the server when absent.
     #[serde(default)]
     pub seed: Option<u64>,
+    /// Store the runs' pictures (SVG, ~50-200 KB each) on the server, e.g. for a campaign
+    /// report; off by default because a large batch would fill the database with them.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub keep_pictures: bool,
 }
 
 fn default_replicates() -> u32 {
@@ -310,6 +314,13 @@ pub struct RunView {
     pub worker_id: Option<Uuid>,
     /// Last failure message.
     pub last_error: Option<String>,
+    /// First 16 hex digits of the SHA-256 of the exact spec sent to the workers: equal
+    /// hashes simulated the same document.
+    #[serde(default)]
+    pub spec_sha256: Option<String>,
+    /// Engine version that computed the result (from the worker's completion).
+    #[serde(default)]
+    pub engine_version: Option<String>,
 }
 
 /// One worker as listed by `GET /v1/workers`.
@@ -417,6 +428,9 @@ pub struct ClaimResponse {
     pub seed: u64,
     /// Which lease this is for the job (1 for the first).
     pub attempt: u32,
+    /// The batch keeps pictures: send them with the completion.
+    #[serde(default)]
+    pub keep_pictures: bool,
 }
 
 /// Periodic proof of life; renews the lease.
@@ -450,6 +464,12 @@ pub struct Completion {
     /// Anything else worth keeping (fit residuals, file names, …).
     #[serde(default)]
     pub details: Value,
+    /// Version of the DEM engine that computed the result, for provenance.
+    #[serde(default)]
+    pub engine_version: Option<String>,
+    /// Pictures by file name (SVG text); stored only if the batch keeps pictures.
+    #[serde(default)]
+    pub pictures: BTreeMap<String, String>,
 }
 
 /// A simulation that could not produce a result.

@@ -812,6 +812,8 @@ impl Campaign {
             seed: r
                 .seed
                 .map(|s| splitmix64(s ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))),
+            // The report shows a verification pile and the drilled hole.
+            keep_pictures: matches!(stage, StageKind::Verification | StageKind::Drilling),
         };
         self.stage = stage;
         self.batches.push(IssuedBatch {

@@ -3,7 +3,8 @@
 
 use std::fmt::Write;
 
-use repose_api::{apply_factor_values, BatchRequest, RunState, RunView};
+use base64::prelude::{Engine as _, BASE64_STANDARD};
+use repose_api::{BatchRequest, RunState, RunView};
 use repose_doe::Fit;
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
@@ -27,19 +28,29 @@ fn result_for(results: &[StageResult], batch: usize) -> Option<&StageResult> {
     results.iter().find(|r| r.batch == batch)
 }
 
-/// Short SHA-256 of the run's complete spec (template with its factor values written in),
-/// kind and preset: two runs with equal hashes simulated the same document.
+/// Short SHA-256 of the run's spec: the server's hash of the exact document the workers
+/// received when it sent one, else a hash of the kind, preset, template and the run's factor
+/// values (paths and values). Two runs with equal hashes simulated the same document.
 fn spec_hash(batch: &BatchRequest, run: &RunView) -> String {
-    let values = batch.factors.iter().filter_map(|f| {
-        run.factors
-            .iter()
-            .find(|v| v.name == f.name)
-            .map(|v| (f.path.as_str(), v.natural))
+    if let Some(hash) = &run.spec_sha256 {
+        return hash.clone();
+    }
+    let values: Vec<(&str, f64)> = batch
+        .factors
+        .iter()
+        .filter_map(|f| {
+            run.factors
+                .iter()
+                .find(|v| v.name == f.name)
+                .map(|v| (f.path.as_str(), v.natural))
+        })
+        .collect();
+    let doc = json!({
+        "kind": batch.experiment.kind,
+        "preset": batch.experiment.preset,
+        "spec": batch.experiment.spec,
+        "values": values,
     });
-    let spec = apply_factor_values(&batch.experiment.spec, values)
-        .unwrap_or_else(|_| batch.experiment.spec.clone());
-    let doc =
-        json!({"kind": batch.experiment.kind, "preset": batch.experiment.preset, "spec": spec});
     let digest = Sha256::digest(doc.to_string().as_bytes());
     digest[..8].iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -69,6 +80,7 @@ fn provenance(c: &Campaign, results: &[StageResult]) -> Vec<Value> {
                 "wall_time_s": run.wall_time_s,
                 "attempts": run.attempts,
                 "spec_sha256": spec_hash(&b.request, run),
+                "engine_version": run.engine_version,
                 "response": response_of(run, &b.request.response),
             }));
         }
@@ -354,32 +366,11 @@ fn picture(out: &mut String, title: &str, svg_doc: &Option<String>) {
                 out,
                 "<div class=\"figs\"><img alt=\"{}\" src=\"data:image/svg+xml;base64,{}\"/></div>",
                 esc(title),
-                base64(doc.as_bytes())
+                BASE64_STANDARD.encode(doc.as_bytes())
             );
         }
         None => out.push_str("<p><small>No picture supplied.</small></p>"),
     }
-}
-
-fn base64(data: &[u8]) -> String {
-    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::with_capacity(data.len().div_ceil(3) * 4);
-    for chunk in data.chunks(3) {
-        let b = [
-            chunk[0],
-            *chunk.get(1).unwrap_or(&0),
-            *chunk.get(2).unwrap_or(&0),
-        ];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for i in 0..4 {
-            if i <= chunk.len() {
-                out.push(T[((n >> (18 - 6 * i)) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
 }
 
 /// The report as one self-contained HTML page.
@@ -572,9 +563,9 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
             .collect();
         let _ = write!(
             o,
-            "<p>{:?} from the {:?}; base factor {}; steps {}.</p>",
+            "<p>{:?} from the {}; base factor {}; steps {}.</p>",
             p.direction,
-            p.start,
+            format!("{:?}", p.start).to_lowercase(),
             esc(&p.base_factor),
             steps.join(", ")
         );
@@ -766,7 +757,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
     }
 
     // Provenance.
-    o.push_str("<h2>Provenance of every run</h2><p><small>spec = first 16 hex digits of the SHA-256 of the run's complete spec (kind, preset, template with the run's factor values). The engine version is not in the run records yet.</small></p>");
+    o.push_str("<h2>Provenance of every run</h2><p><small>spec = first 16 hex digits of the SHA-256 of the exact spec the workers received (equal hashes simulated the same document); engine = the DEM engine version that computed the result.</small></p>");
     let rows: Vec<Vec<String>> = provenance(c, results)
         .iter()
         .map(|p| {
@@ -780,6 +771,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                     .map_or(s("—"), |w| esc(&w[..8.min(w.len())])),
                 p["wall_time_s"].as_f64().map_or(s("—"), fmt_num),
                 p["attempts"].to_string(),
+                esc(p["engine_version"].as_str().unwrap_or("—")),
                 format!(
                     "<code>{}</code>",
                     esc(p["spec_sha256"].as_str().unwrap_or(""))
@@ -791,7 +783,8 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
     table(
         &mut o,
         &[
-            "batch", "run", "seed", "status", "worker", "wall s", "attempts", "spec", "response",
+            "batch", "run", "seed", "status", "worker", "wall s", "attempts", "engine", "spec",
+            "response",
         ]
         .map(s),
         &rows,
@@ -799,15 +792,4 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
     );
     o.push_str("</body></html>\n");
     o
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn base64_matches_rfc4648() {
-        assert_eq!(super::base64(b""), "");
-        assert_eq!(super::base64(b"f"), "Zg==");
-        assert_eq!(super::base64(b"fo"), "Zm8=");
-        assert_eq!(super::base64(b"foobar"), "Zm9vYmFy");
-    }
 }

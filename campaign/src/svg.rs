@@ -58,6 +58,22 @@ impl Frame {
         x: (f64, f64),
         y: (f64, f64),
     ) -> Self {
+        Self::build(title, xlabel, ylabel, x, y, true)
+    }
+
+    /// A frame whose y axis is categories drawn by the caller (no numeric ticks).
+    pub(crate) fn categorical_y(title: &str, xlabel: &str, x: (f64, f64), y: (f64, f64)) -> Self {
+        Self::build(title, xlabel, "", x, y, false)
+    }
+
+    fn build(
+        title: &str,
+        xlabel: &str,
+        ylabel: &str,
+        x: (f64, f64),
+        y: (f64, f64),
+        y_ticks: bool,
+    ) -> Self {
         let pad = |(a, b): (f64, f64)| {
             let (a, b) = if a.is_finite() && b.is_finite() {
                 (a, b)
@@ -102,7 +118,7 @@ impl Frame {
                 fmt_tick(t)
             );
         }
-        for t in nice_ticks(y0, y1, 6) {
+        for t in nice_ticks(y0, y1, 6).into_iter().filter(|_| y_ticks) {
             let py = f.py(t);
             let _ = write!(
                 f.out,
@@ -218,10 +234,9 @@ pub(crate) fn pareto(names: &[String], abs_t: &[f64], t_crit: f64) -> String {
     order.sort_by(|&a, &b| abs_t[b].total_cmp(&abs_t[a]));
     let xmax = abs_t.iter().copied().fold(t_crit, f64::max) * 1.1;
     let n = names.len().max(1) as f64;
-    let mut f = Frame::new(
+    let mut f = Frame::categorical_y(
         "Pareto chart of standardized effects",
         "|t| (standardized effect)",
-        "",
         (0.0, xmax),
         (0.0, n),
     );

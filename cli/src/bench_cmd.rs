@@ -425,6 +425,8 @@ async fn fake_worker(
             metrics: [("y".to_owned(), 30.0 + 2.0 * a - b)].into(),
             wall_time_s: 0.0,
             details: serde_json::Value::Null,
+            engine_version: None,
+            pictures: Default::default(),
         };
         let started = Instant::now();
         let response = client

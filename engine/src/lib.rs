@@ -1,5 +1,8 @@
 //! The DEM engine (Hertz-Mindlin no-slip, rolling friction, triangle meshes).
 
+/// The engine's version, recorded with every result for provenance.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+
 pub mod bench;
 pub mod contact;
 pub mod distribution;

@@ -11,3 +11,6 @@ pub mod replay;
 mod spec_path;
 
 pub use spec_path::SpecError;
+
+/// Version of the DEM engine these experiments run on (recorded with results).
+pub use repose_engine::VERSION as ENGINE_VERSION;

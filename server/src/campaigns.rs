@@ -4,7 +4,9 @@
 //! same call at start-up resumes campaigns whose batch finished while the server was down.
 
 use repose_api::{BatchState, RunView};
-use repose_campaign::{Campaign, CampaignRequest, Next, StageResult, Status};
+use repose_campaign::{
+    Campaign, CampaignRequest, Next, ReportPictures, StageKind, StageResult, Status,
+};
 use uuid::Uuid;
 
 use crate::db::{CampaignRecord, CampaignUpdate};
@@ -90,6 +92,34 @@ pub async fn stage_results(
         });
     }
     Ok(results)
+}
+
+/// The report's pictures: the first stored picture of the last verification batch (a pile)
+/// and of the drilling batch (the hole's section), when the workers sent them.
+pub async fn report_pictures(
+    state: &AppState,
+    campaign: &Campaign,
+    record: &CampaignRecord,
+) -> Result<ReportPictures, AppError> {
+    let mut pictures = ReportPictures::default();
+    for issued in campaign.batches.iter().rev() {
+        let Some(batch_id) = record.batch_ids.get(issued.index) else {
+            continue;
+        };
+        let slot = match issued.stage {
+            StageKind::Verification => &mut pictures.verification_pile,
+            StageKind::Drilling => &mut pictures.drilled_hole,
+            _ => continue,
+        };
+        if slot.is_some() {
+            continue;
+        }
+        let mut stored = state.db.first_run_pictures(*batch_id).await?;
+        *slot = ["pile.svg", "section.svg"]
+            .iter()
+            .find_map(|name| stored.remove(*name));
+    }
+    Ok(pictures)
 }
 
 /// Moves the campaign that owns `batch_id` on, if that batch is its outstanding one and has

@@ -241,6 +241,7 @@ impl Db {
         let names: Vec<String> = factors.into_iter().map(|f| f.name).collect();
         let rows = sqlx::query(
             "SELECT r.id, r.run_index, r.design_row, r.replicate, r.coded, r.natural, r.seed,
+                    r.spec, r.engine_version,
                     r.metrics, r.wall_time_s, COALESCE(r.worker_id, j.worker_id) AS worker_id,
                     j.state, j.attempts, j.last_error
              FROM runs r JOIN jobs j ON j.run_id = r.id
@@ -278,10 +279,31 @@ impl Db {
                     wall_time_s: row.try_get("wall_time_s")?,
                     worker_id: worker_id.as_deref().map(parse_uuid).transpose()?,
                     last_error: row.try_get("last_error")?,
+                    spec_sha256: Some(short_sha256(row.try_get::<&str, _>("spec")?)),
+                    engine_version: row.try_get("engine_version")?,
                 })
             })
             .collect::<Result<Vec<_>, AppError>>()?;
         Ok(Some((names, runs)))
+    }
+
+    /// The stored pictures of a batch's first completed run that has any (run order), by
+    /// file name; empty if the batch keeps none.
+    pub async fn first_run_pictures(
+        &self,
+        batch_id: Uuid,
+    ) -> Result<BTreeMap<String, String>, AppError> {
+        let pictures: Option<String> = sqlx::query_scalar(
+            "SELECT pictures FROM runs WHERE batch_id = ? AND pictures IS NOT NULL
+             ORDER BY run_index LIMIT 1",
+        )
+        .bind(batch_id.to_string())
+        .fetch_optional(&self.reader)
+        .await?;
+        Ok(match pictures {
+            Some(text) => serde_json::from_str(&text)?,
+            None => BTreeMap::new(),
+        })
     }
 
     /// Cancels an active batch on behalf of the user token `caller`: its unfinished jobs will
@@ -434,7 +456,9 @@ impl Db {
              RETURNING id, run_id, batch_id, attempts,
                        (SELECT spec FROM runs WHERE runs.id = jobs.run_id) AS spec,
                        (SELECT seed FROM runs WHERE runs.id = jobs.run_id) AS seed,
-                       (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind",
+                       (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind,
+                       (SELECT keep_pictures FROM batches WHERE batches.id = jobs.batch_id)
+                           AS keep_pictures",
         )
         .bind(token.to_string())
         .bind(worker_id.to_string())
@@ -467,6 +491,7 @@ impl Db {
                 spec,
                 seed: claimed.try_get::<i64, _>("seed")? as u64,
                 attempt: attempt as u32,
+                keep_pictures: claimed.try_get("keep_pictures")?,
             }),
             finished,
         ))
@@ -554,7 +579,10 @@ impl Db {
         }
         let stored = sqlx::query(
             "UPDATE runs SET metrics = ?, details = ?, wall_time_s = ?, worker_id = ?,
-                             completed_at = ?
+                             completed_at = ?, engine_version = ?,
+                             pictures = CASE WHEN (SELECT keep_pictures FROM batches
+                                                   WHERE batches.id = runs.batch_id)
+                                             THEN ? END
              WHERE id = ? AND metrics IS NULL",
         )
         .bind(serde_json::to_string(&completion.metrics)?)
@@ -562,6 +590,12 @@ impl Db {
         .bind(completion.wall_time_s)
         .bind(&found.worker_id)
         .bind(now)
+        .bind(&completion.engine_version)
+        .bind(if completion.pictures.is_empty() {
+            None
+        } else {
+            Some(serde_json::to_string(&completion.pictures)?)
+        })
         .bind(&found.run_id)
         .execute(&mut *tx)
         .await?
@@ -972,8 +1006,8 @@ async fn insert_batch_tx(
     let request = &plan.request;
     sqlx::query(
         "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
-                                  target, base_seed, state, created_at, owner)
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?)",
+                                  target, base_seed, state, created_at, owner, keep_pictures)
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?, ?)",
     )
     .bind(batch_id.to_string())
     .bind(&request.name)
@@ -987,6 +1021,7 @@ async fn insert_batch_tx(
     .bind(plan.base_seed as i64)
     .bind(now)
     .bind(owner)
+    .bind(request.keep_pictures)
     .execute(&mut **tx)
     .await?;
     for run in &plan.runs {
@@ -1173,6 +1208,15 @@ fn token_from_row(row: &SqliteRow) -> Result<TokenInfo, sqlx::Error> {
         created_at_ms: row.try_get("created_at")?,
         revoked_at_ms: row.try_get("revoked_at")?,
     })
+}
+
+/// First 16 hex digits of the SHA-256 of `text`.
+fn short_sha256(text: &str) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(text.as_bytes())[..8]
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 fn parse_uuid(text: &str) -> Result<Uuid, AppError> {

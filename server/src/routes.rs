@@ -798,15 +798,12 @@ async fn campaign_report(
         .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
     let campaign = campaigns::decode(&record)?;
     let results = campaigns::stage_results(&state, &record).await?;
+    let pictures = campaigns::report_pictures(&state, &campaign, &record).await?;
     match query.format.as_deref() {
         Some("json") => Ok(Json(repose_campaign::report_json(&campaign, &results)).into_response()),
         None | Some("html") => {
             let html = tokio::task::spawn_blocking(move || {
-                repose_campaign::report_html(
-                    &campaign,
-                    &results,
-                    &repose_campaign::ReportPictures::default(),
-                )
+                repose_campaign::report_html(&campaign, &results, &pictures)
             })
             .await
             .map_err(|err| AppError::Internal(format!("report task: {err}")))?;

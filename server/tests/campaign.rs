@@ -42,6 +42,21 @@ fn answer(job: &ClaimResponse) -> Completion {
         metrics,
         wall_time_s: 0.0,
         details: json!({"worker": "test replay"}),
+        engine_version: Some("replay-engine-0".into()),
+        // Sent only when asked, as the real worker does; the server keeps them only for
+        // batches that keep pictures anyway.
+        pictures: if job.keep_pictures {
+            [(
+                "pile.svg".to_owned(),
+                format!(
+                    "<svg id=\"verification-pile\"><!-- seed {} --></svg>",
+                    job.seed
+                ),
+            )]
+            .into()
+        } else {
+            Default::default()
+        },
     }
 }
 
@@ -138,6 +153,27 @@ async fn the_paper_replayed_as_a_campaign_through_the_server_survives_a_restart(
         .await;
     assert_eq!(status, StatusCode::OK, "{json_report}");
     assert!(json_report.is_object());
+
+    // The verification batch kept its pictures, and the report shows one.
+    assert!(
+        html.contains("<img alt=\"Verification pile\"") && !html.contains("No picture supplied"),
+        "verification pile in the report"
+    );
+    // Provenance: every run names the engine that computed it, and the spec hash is the
+    // server's hash of the run's own spec (distinct runs of the screening have distinct ones).
+    let provenance = json_report["provenance"].as_array().expect("provenance");
+    assert!(!provenance.is_empty());
+    for p in provenance {
+        if p["status"] == "completed" {
+            assert_eq!(p["engine_version"], "replay-engine-0", "{p}");
+        }
+    }
+    let screening: std::collections::BTreeSet<&str> = provenance
+        .iter()
+        .filter(|p| p["batch"] == 0)
+        .map(|p| p["spec_sha256"].as_str().unwrap())
+        .collect();
+    assert_eq!(screening.len(), 12, "one hash per PB run: {screening:?}");
 
     let (status, list) = server.get("/v1/campaigns").await;
     assert_eq!(status, StatusCode::OK);

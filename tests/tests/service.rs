@@ -285,6 +285,8 @@ fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum()
     let service = Service::start(dir.path(), 60.0);
     let _a = service.start_worker("worker-a", &[]);
     let _b = service.start_worker("worker-b", &[]);
+    // Seeds are fixed, and the engine is deterministic, so this campaign takes the same path
+    // on every machine; a change in the engine or the campaign rules can move it.
     let campaign = json!({
         "name": "CI calibration",
         "experiment": {"kind": "aor", "preset": "fast", "spec": {"total_mass": 0.025}},
@@ -322,4 +324,16 @@ fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum()
     assert!(error <= 10.0, "{error}");
     let report = service.get_text(&format!("/v1/campaigns/{id}/report"));
     assert!(report.contains("Provenance"), "report served");
+    // The real worker sent the verification pile's picture (the batch keeps pictures) and
+    // the engine version of every result.
+    assert!(
+        report.contains("<img alt=\"Verification pile\""),
+        "verification pile in the report"
+    );
+    let json_report = service.get(&format!("/v1/campaigns/{id}/report?format=json"));
+    for p in json_report["provenance"].as_array().unwrap() {
+        if p["status"] == "completed" {
+            assert!(p["engine_version"].is_string(), "{p}");
+        }
+    }
 }

@@ -309,11 +309,18 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
             if let Some(dir) = &context.config.artifacts_dir {
                 save_pictures(dir, job.run_id, &outcome);
             }
+            let pictures = if job.keep_pictures {
+                outcome.pictures.into_iter().collect()
+            } else {
+                Default::default()
+            };
             let completion = Completion {
                 lease_token: job.lease_token,
                 metrics: outcome.metrics,
                 wall_time_s,
                 details: outcome.details,
+                engine_version: Some(repose_experiments::ENGINE_VERSION.to_owned()),
+                pictures,
             };
             deliver(context, job.job_id, "complete", |c| {
                 let completion = completion.clone();

@@ -213,6 +213,8 @@ pub fn run_batch_with(
                 },
                 attempts: 1,
                 metrics: result.as_ref().ok().cloned(),
+                spec_sha256: None,
+                engine_version: None,
                 wall_time_s: ok.then_some(0.01 + (i % 7) as f64 * 0.001),
                 worker_id: Some(Uuid::from_u128(0xABCD_0000 + (i % 2) as u128)),
                 last_error: result.err(),

@@ -254,6 +254,12 @@ pub fn simulate(job: &ClaimResponse) -> Completion {
         metrics: [("angle_deg".to_owned(), angle_for(&job.spec, job.seed))].into(),
         wall_time_s: 0.01,
         details: json!({"worker": "fake"}),
+        engine_version: Some("fake-engine".into()),
+        pictures: [(
+            "pile.svg".to_owned(),
+            format!("<svg><!-- run {} --></svg>", job.run_id),
+        )]
+        .into(),
     }
 }
 
