@@ -7,7 +7,7 @@ use std::time::Duration;
 use common::{batch_request, run_fake_worker, temp_db, TestServer};
 use repose_api::{BatchState, RunState};
 use reqwest::StatusCode;
-use serde_json::json;
+use serde_json::{json, Value};
 use uuid::Uuid;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -474,5 +474,30 @@ async fn long_poll_wakes_on_submission_and_cancel_stops_workers() {
     let (status, body) = server.post("/v1/jobs/claim", &unregistered).await;
     assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY);
     assert_eq!(body["field"], "worker_id");
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_example_batch_and_campaign_files_are_accepted() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples");
+    let mut seen = 0;
+    for (folder, endpoint) in [("batches", "/v1/batches"), ("campaigns", "/v1/campaigns")] {
+        let mut files: Vec<_> = std::fs::read_dir(root.join(folder))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|x| x == "json"))
+            .collect();
+        files.sort();
+        for file in files {
+            let body: Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap())
+                .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+            let (status, reply) = server.post(endpoint, &body).await;
+            assert_eq!(status, StatusCode::CREATED, "{}: {reply}", file.display());
+            seen += 1;
+        }
+    }
+    assert!(seen >= 5, "example files found: {seen}");
     server.stop().await;
 }
