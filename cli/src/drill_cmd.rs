@@ -11,12 +11,11 @@ use crate::sim::write_file;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use repose_experiments::catalog::merge_json;
-use repose_experiments::drill::{
-    bed_key, build_bed, run_drill_on_bed, Control, DrillSpec, SettledBed,
-};
+use repose_experiments::catalog::{merge_json, BedStore};
+use repose_experiments::drill::{bed_key, build_bed, run_drill_on_bed, Control, DrillSpec};
+use repose_worker::FileBedStore;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Debug, Args)]
 pub struct DrillArgs {
@@ -68,13 +67,6 @@ fn effective_spec(args: &DrillArgs) -> Result<DrillSpec> {
     Ok(spec)
 }
 
-/// The cached bed for `key` in `dir`, if there is a readable one built for that key.
-fn cached_bed(dir: &Path, key: &str) -> Option<SettledBed> {
-    let text = std::fs::read_to_string(dir.join(format!("{key}.json"))).ok()?;
-    let bed: SettledBed = serde_json::from_str(&text).ok()?;
-    (bed.key == key).then_some(bed)
-}
-
 pub fn run(args: &DrillArgs) -> Result<()> {
     let spec = effective_spec(args)?;
     if args.print_spec {
@@ -106,10 +98,8 @@ pub fn run(args: &DrillArgs) -> Result<()> {
             .expect("valid template"),
     );
     let key = bed_key(&spec);
-    let cached = args
-        .bed_cache
-        .as_deref()
-        .and_then(|dir| cached_bed(dir, &key));
+    let mut store = args.bed_cache.as_ref().map(FileBedStore::new);
+    let cached = store.as_mut().and_then(|s| s.get(&key));
     let reused = cached.is_some();
     let bed_share = if cached.is_some() { 0.0 } else { 0.25 };
     let started = std::time::Instant::now();
@@ -125,14 +115,10 @@ pub fn run(args: &DrillArgs) -> Result<()> {
                     ));
                     Control::Continue
                 })?;
-                if let Some(dir) = &args.bed_cache {
-                    // Written aside and renamed, so a concurrent reader never sees half a bed.
-                    let path = dir.join(format!("{key}.json"));
-                    let partial = dir.join(format!("{key}.json.{}.partial", std::process::id()));
-                    let json = serde_json::to_string(&bed)?;
-                    write_file(&partial, |w| w.write_all(json.as_bytes()))?;
-                    std::fs::rename(&partial, &path)
-                        .with_context(|| format!("cannot write {}", path.display()))?;
+                if let Some(store) = &store {
+                    store.write(&bed).with_context(|| {
+                        format!("cannot keep the bed in {}", store.dir().display())
+                    })?;
                 }
                 bed
             }

@@ -52,6 +52,10 @@ pub struct UpArgs {
     /// database, `<db>.tokens.env`).
     #[arg(long)]
     pub tokens_file: Option<PathBuf>,
+    /// Settled drilling beds, reused across runs with the same bed inputs (default: next to
+    /// the database, `<db>.beds/`, created when the first bed is built).
+    #[arg(long, value_name = "DIR")]
+    pub bed_cache: Option<PathBuf>,
 }
 
 /// Validated settings.
@@ -65,6 +69,7 @@ struct UpConfig {
     exit_when_done: bool,
     artifacts: Option<PathBuf>,
     tokens_file: PathBuf,
+    bed_cache: PathBuf,
 }
 
 fn config(args: &UpArgs) -> Result<UpConfig> {
@@ -102,7 +107,13 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         name.push(".tokens.env");
         PathBuf::from(name)
     });
+    let bed_cache = args.bed_cache.clone().unwrap_or_else(|| {
+        let mut name = args.db.as_os_str().to_owned();
+        name.push(".beds");
+        PathBuf::from(name)
+    });
     Ok(UpConfig {
+        bed_cache,
         server,
         workers: args.workers,
         threads,
@@ -145,6 +156,7 @@ async fn up(config: UpConfig) -> Result<()> {
         worker.token = Some(tokens.worker.clone());
         worker.threads = config.threads;
         worker.artifacts_dir = config.artifacts.clone();
+        worker.bed_cache = Some(config.bed_cache.clone());
         let mut stopped = workers_stopped.clone();
         workers.push(tokio::spawn(repose_worker::run(worker, async move {
             let _ = stopped.wait_for(|s| *s).await;

@@ -22,6 +22,10 @@ pub struct WorkerArgs {
     /// Keep each run's pictures (e.g. pile.svg) under DIR/<run id>/.
     #[arg(long, env = "REPOSE_ARTIFACTS")]
     pub artifacts: Option<PathBuf>,
+    /// Keep settled drilling beds under DIR and reuse them for runs with the same bed inputs
+    /// (may be shared by several workers on one machine).
+    #[arg(long, env = "REPOSE_BED_CACHE", value_name = "DIR")]
+    pub bed_cache: Option<PathBuf>,
 }
 
 /// The validated worker configuration.
@@ -46,6 +50,7 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
     config.slots = args.slots;
     config.threads = threads;
     config.artifacts_dir = args.artifacts.clone();
+    config.bed_cache = args.bed_cache.clone();
     Ok(config)
 }
 

@@ -11,8 +11,31 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use crate::aor::{run_aor, AorSpec, Control, RunStatus};
-use crate::drill::{run_drill, DrillError, DrillSpec, DrillStatus};
+use crate::drill::{
+    bed_key, build_bed, run_drill_on_bed, DrillError, DrillSpec, DrillStatus, SettledBed,
+};
 use crate::replay::{ReplayError, ReplaySpec};
+
+/// Settled drilling beds kept between runs under their [`bed_key`]: a worker keeps them on
+/// disk so that runs whose bed inputs are equal (e.g. a batch varying only the auger, with
+/// `bed.seed` fixed) do not rebuild the bed every time.
+pub trait BedStore {
+    /// The bed stored under `key`, if there is one.
+    fn get(&mut self, key: &str) -> Option<SettledBed>;
+    /// Keeps `bed` under `bed.key`; failing to keep it must not fail the run.
+    fn put(&mut self, bed: &SettledBed);
+}
+
+/// No store: every drilling run builds its own bed.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoBedStore;
+
+impl BedStore for NoBedStore {
+    fn get(&mut self, _key: &str) -> Option<SettledBed> {
+        None
+    }
+    fn put(&mut self, _bed: &SettledBed) {}
+}
 
 /// Kinds understood by [`run_experiment`].
 pub const KINDS: [&str; 3] = ["aor", "drill", "table_lookup"];
@@ -141,6 +164,18 @@ pub fn run_experiment(
     seed: u64,
     progress: &mut dyn FnMut(f64) -> Control,
 ) -> Result<Outcome, ExperimentError> {
+    run_experiment_with_beds(kind, spec, seed, progress, &mut NoBedStore)
+}
+
+/// [`run_experiment`], with drilling beds taken from and kept in `beds`. The outcome is the
+/// same, bit for bit, whether the bed was built or reused (`details.bed.reused` says which).
+pub fn run_experiment_with_beds(
+    kind: &str,
+    spec: &Value,
+    seed: u64,
+    progress: &mut dyn FnMut(f64) -> Control,
+    beds: &mut dyn BedStore,
+) -> Result<Outcome, ExperimentError> {
     match kind {
         "aor" => {
             let mut spec = parse_aor(spec)?;
@@ -209,13 +244,34 @@ pub fn run_experiment(
         "drill" => {
             let mut spec = parse_drill(spec)?;
             spec.seed = seed;
-            let run = run_drill(&spec, &mut |p| progress(p.fraction)).map_err(|e| match e {
+            let drill_error = |e: DrillError| match e {
                 DrillError::Cancelled => ExperimentError::Cancelled,
                 other => ExperimentError::InvalidSpec {
                     path: None,
                     message: other.to_string(),
                 },
-            })?;
+            };
+            let key = bed_key(&spec);
+            let cached = beds.get(&key).filter(|bed| bed.key == key);
+            let reused = cached.is_some();
+            // Building the bed takes the first quarter of the progress.
+            let bed_share = if reused { 0.0 } else { 0.25 };
+            let bed = match cached {
+                Some(bed) => bed,
+                None => {
+                    let bed = build_bed(&spec, &mut |p| progress(bed_share * p.fraction))
+                        .map_err(drill_error)?;
+                    beds.put(&bed);
+                    bed
+                }
+            };
+            let bed_wall_s = if reused { 0.0 } else { bed.wall_time_s };
+            let mut run = run_drill_on_bed(&spec, bed, &mut |p| {
+                progress(bed_share + (1.0 - bed_share) * p.fraction)
+            })
+            .map_err(drill_error)?;
+            run.result.bed.reused = reused;
+            run.result.wall_time_s += bed_wall_s;
             let details = serde_json::to_value(&run.result).expect("DrillResult serialises");
             match run.result.status {
                 DrillStatus::Ok | DrillStatus::NotSettled => {}

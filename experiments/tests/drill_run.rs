@@ -4,9 +4,10 @@
 
 use std::sync::OnceLock;
 
+use repose_experiments::catalog::{prepare_spec, run_experiment_with_beds, BedStore};
 use repose_experiments::drill::{
-    build_bed, run_drill, run_drill_on_bed, Control, DrillError, DrillResult, DrillRun, DrillSpec,
-    DrillStatus, SettledBed,
+    bed_key, build_bed, run_drill, run_drill_on_bed, Control, DrillError, DrillResult, DrillRun,
+    DrillSpec, DrillStatus, SettledBed,
 };
 
 fn fast() -> DrillSpec {
@@ -182,4 +183,76 @@ fn a_bed_for_other_parameters_is_refused_and_cancel_stops() {
     assert!(run.result.metrics().is_empty());
     assert!(run.result.simulated_time_s < 0.2);
     assert!(calls > 1);
+}
+
+/// An in-memory [`BedStore`] that counts what it was asked.
+#[derive(Default)]
+struct MemoryBeds {
+    beds: std::collections::HashMap<String, SettledBed>,
+    hits: usize,
+    puts: usize,
+}
+
+impl BedStore for MemoryBeds {
+    fn get(&mut self, key: &str) -> Option<SettledBed> {
+        let bed = self.beds.get(key).cloned();
+        self.hits += usize::from(bed.is_some());
+        bed
+    }
+    fn put(&mut self, bed: &SettledBed) {
+        self.puts += 1;
+        self.beds.insert(bed.key.clone(), bed.clone());
+    }
+}
+
+#[test]
+fn a_job_reuses_a_stored_bed_with_the_same_outcome_and_keeps_a_new_one() {
+    let spec = prepare_spec("drill", Some("fast"), &serde_json::json!({})).unwrap();
+    let seed = fast().seed;
+    // A store holding the fast bed: the job drills it instead of building one, and the
+    // metrics are those of a run that built its own bed, bit for bit.
+    let mut store = MemoryBeds::default();
+    store.put(bed());
+    let outcome =
+        run_experiment_with_beds("drill", &spec, seed, &mut |_| Control::Continue, &mut store)
+            .unwrap();
+    assert_eq!(store.hits, 1);
+    assert_eq!(outcome.details["bed"]["reused"], true);
+    assert_eq!(outcome.metrics, deep().result.metrics());
+
+    // An empty store: the job builds the bed (the same one) and keeps it under its key.
+    let mut empty = MemoryBeds::default();
+    let mut shallow = spec.clone();
+    shallow["drill"]["depth"] = serde_json::json!(0.02);
+    let outcome = run_experiment_with_beds(
+        "drill",
+        &shallow,
+        seed,
+        &mut |_| Control::Continue,
+        &mut empty,
+    )
+    .unwrap();
+    assert_eq!((empty.hits, empty.puts), (0, 1));
+    assert_eq!(outcome.details["bed"]["reused"], false);
+    let mut kept = empty
+        .beds
+        .remove(&bed().key)
+        .expect("kept under the fast bed's key");
+    kept.wall_time_s = bed().wall_time_s;
+    assert_eq!(&kept, bed());
+}
+
+#[test]
+fn runs_of_a_batch_share_a_bed_only_when_its_seed_is_fixed() {
+    let (mut a, mut b) = (fast(), fast());
+    a.seed = 1;
+    b.seed = 2;
+    assert_ne!(
+        bed_key(&a),
+        bed_key(&b),
+        "the bed follows the run's seed by default"
+    );
+    a.set("bed.seed", "7").unwrap();
+    b.set("bed.seed", "7").unwrap();
+    assert_eq!(bed_key(&a), bed_key(&b));
 }

@@ -29,12 +29,14 @@ use std::time::{Duration, Instant};
 use rand::Rng;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
 use repose_experiments::aor::Control;
-use repose_experiments::catalog::{run_experiment, ExperimentError, Outcome};
+use repose_experiments::catalog::{run_experiment_with_beds, ExperimentError, Outcome};
 use tokio::sync::watch;
 use uuid::Uuid;
 
+mod beds;
 mod client;
 
+pub use beds::FileBedStore;
 pub use client::{CallError, Client};
 
 /// Worker settings; the command line fills this from its flags.
@@ -56,6 +58,8 @@ pub struct WorkerConfig {
     pub max_backoff: Duration,
     /// Where to write each run's pictures (`<dir>/<run id>/…`); none: not kept.
     pub artifacts_dir: Option<PathBuf>,
+    /// Directory of settled drilling beds reused across runs; none: every run builds its bed.
+    pub bed_cache: Option<PathBuf>,
 }
 
 impl WorkerConfig {
@@ -70,6 +74,7 @@ impl WorkerConfig {
             claim_wait: Duration::from_secs(20),
             max_backoff: Duration::from_secs(30),
             artifacts_dir: None,
+            bed_cache: None,
         }
     }
 }
@@ -277,7 +282,11 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
         let signals = signals.clone();
         let threads = context.config.threads;
         let (kind, spec, seed) = (job.kind.clone(), job.spec.clone(), job.seed);
-        tokio::task::spawn_blocking(move || simulate(&kind, &spec, seed, threads, &signals)).await
+        let bed_cache = context.config.bed_cache.clone();
+        tokio::task::spawn_blocking(move || {
+            simulate(&kind, &spec, seed, threads, bed_cache, &signals)
+        })
+        .await
     };
     // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
     if let Ok(Ok(outcome)) = &outcome {
@@ -435,6 +444,7 @@ fn simulate(
     spec: &serde_json::Value,
     seed: u64,
     threads: usize,
+    bed_cache: Option<PathBuf>,
     signals: &JobSignals,
 ) -> Result<Outcome, ExperimentError> {
     let pool = rayon::ThreadPoolBuilder::new()
@@ -444,17 +454,27 @@ fn simulate(
             path: None,
             message: format!("cannot start {threads} simulation threads: {e}"),
         })?;
+    let mut beds: Box<dyn repose_experiments::catalog::BedStore + Send> = match bed_cache {
+        Some(dir) => Box::new(FileBedStore::new(dir)),
+        None => Box::new(repose_experiments::catalog::NoBedStore),
+    };
     pool.install(|| {
-        run_experiment(kind, spec, seed, &mut |fraction| {
-            signals
-                .progress
-                .store(fraction.clamp(0.0, 1.0).to_bits(), Ordering::Relaxed);
-            if signals.cancel.load(Ordering::Relaxed) {
-                Control::Cancel
-            } else {
-                Control::Continue
-            }
-        })
+        run_experiment_with_beds(
+            kind,
+            spec,
+            seed,
+            &mut |fraction| {
+                signals
+                    .progress
+                    .store(fraction.clamp(0.0, 1.0).to_bits(), Ordering::Relaxed);
+                if signals.cancel.load(Ordering::Relaxed) {
+                    Control::Cancel
+                } else {
+                    Control::Continue
+                }
+            },
+            beds.as_mut(),
+        )
     })
 }
 
@@ -534,11 +554,11 @@ mod tests {
     fn simulate_runs_a_replay_and_honours_cancel() {
         let spec = serde_json::json!({"values": {"a": 1.0}, "rows": [{"a": 1.0, "y": 2.0}]});
         let signals = JobSignals::default();
-        let outcome = simulate("table_lookup", &spec, 0, 1, &signals).unwrap();
+        let outcome = simulate("table_lookup", &spec, 0, 1, None, &signals).unwrap();
         assert_eq!(outcome.metrics["y"], 2.0);
         signals.cancel.store(true, Ordering::SeqCst);
         assert!(matches!(
-            simulate("table_lookup", &spec, 0, 1, &signals),
+            simulate("table_lookup", &spec, 0, 1, None, &signals),
             Err(ExperimentError::Cancelled)
         ));
     }
