@@ -11,7 +11,6 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{run_aor, AorSpec, Control};
-use repose_experiments::catalog::merge_json;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -44,17 +43,7 @@ pub struct AorArgs {
 
 fn effective_spec(args: &AorArgs) -> Result<AorSpec> {
     let mut spec = match &args.spec {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read spec {}", path.display()))?;
-            // Missing fields take the preset's values: merge the file over the preset.
-            let base = serde_json::to_value(AorSpec::preset(&args.preset)?)?;
-            let given: serde_json::Value = serde_json::from_str(&text)
-                .with_context(|| format!("invalid spec {}", path.display()))?;
-            let merged = merge_json(base, given);
-            serde_json::from_value(merged)
-                .with_context(|| format!("invalid spec {}", path.display()))?
-        }
+        Some(path) => crate::sim::spec_over_preset(path, &AorSpec::preset(&args.preset)?)?,
         None => AorSpec::preset(&args.preset)?,
     };
     spec.apply_assignments(args.set.iter().map(String::as_str))?;

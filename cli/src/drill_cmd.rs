@@ -11,7 +11,7 @@ use crate::sim::write_file;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use repose_experiments::catalog::{merge_json, BedStore};
+use repose_experiments::catalog::BedStore;
 use repose_experiments::drill::{bed_key, build_bed, run_drill_on_bed, Control, DrillSpec};
 use repose_worker::FileBedStore;
 use std::io::Write;
@@ -50,16 +50,7 @@ pub struct DrillArgs {
 
 fn effective_spec(args: &DrillArgs) -> Result<DrillSpec> {
     let mut spec = match &args.spec {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read spec {}", path.display()))?;
-            // Missing fields take the preset's values: merge the file over the preset.
-            let base = serde_json::to_value(DrillSpec::preset(&args.preset)?)?;
-            let given: serde_json::Value = serde_json::from_str(&text)
-                .with_context(|| format!("invalid spec {}", path.display()))?;
-            serde_json::from_value(merge_json(base, given))
-                .with_context(|| format!("invalid spec {}", path.display()))?
-        }
+        Some(path) => crate::sim::spec_over_preset(path, &DrillSpec::preset(&args.preset)?)?,
         None => DrillSpec::preset(&args.preset)?,
     };
     spec.apply_assignments(args.set.iter().map(String::as_str))?;

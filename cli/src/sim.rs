@@ -199,3 +199,18 @@ fn write_snapshot(dir: &Path, world: &World, names: &[String], index: usize) -> 
     }
     Ok(())
 }
+
+/// The spec in the JSON file at `path`, merged over `preset`: fields the file leaves out take
+/// the preset's values.
+pub fn spec_over_preset<T: Serialize + serde::de::DeserializeOwned>(
+    path: &Path,
+    preset: &T,
+) -> Result<T> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read spec {}", path.display()))?;
+    let given: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("invalid spec {}", path.display()))?;
+    let base = serde_json::to_value(preset)?;
+    serde_json::from_value(repose_experiments::catalog::merge_json(base, given))
+        .with_context(|| format!("invalid spec {}", path.display()))
+}
