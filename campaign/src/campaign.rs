@@ -1081,9 +1081,18 @@ impl Campaign {
                          corner; the path starts from the corner {} the target {} and walks toward it",
                         fmt_num(pa),
                         fmt_num(pd),
-                        if ascent_ok && descent_ok { "nearer" } else { "below/above" },
+                        match (ascent_ok && descent_ok, ascent) {
+                            (true, _) => "nearer",
+                            (false, true) => "below",
+                            (false, false) => "above",
+                        },
                         fmt_num(target)
-                    ),
+                    ) + if ascent_ok != descent_ok {
+                        " (the target lies beyond both corners' predictions, so the path may not \
+                         reach it)"
+                    } else {
+                        ""
+                    },
                 )
             }
         };

@@ -156,6 +156,9 @@ fn a_path_that_never_crosses_the_target_falls_back_to_the_closest_point() {
         .decisions
         .iter()
         .any(|d| d.text.contains("never crossed the target")));
+    assert!(campaign.decisions.iter().any(|d| d
+        .text
+        .contains("starts from the corner below the target 80 and walks toward it (the target lies beyond both corners' predictions")));
     assert_eq!(campaign.surfaces[0].centre, path.points[centre].natural);
     // The unreachable target ends in a stop with a reason, not silently.
     let Next::NeedsAttention(reason) = next else {
