@@ -12,7 +12,9 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_experiments::catalog::BedStore;
-use repose_experiments::drill::{bed_key, build_bed, run_drill_on_bed, Control, DrillSpec};
+use repose_experiments::drill::{
+    bed_key, build_bed, run_drill_on_bed, Control, DrillSpec, StlDrill,
+};
 use repose_worker::FileBedStore;
 use std::io::Write;
 use std::path::PathBuf;
@@ -34,6 +36,13 @@ pub struct DrillArgs {
     /// Directory for result.json, section.svg, forces.svg, forces.csv (created if missing).
     #[arg(long, required_unless_present = "print_spec")]
     pub out: Option<PathBuf>,
+    /// Drill with this STL model (binary or ASCII; tip at the origin, axis +z) instead of the
+    /// generated auger; set `auger.outer_diameter` to its diameter. Embedded in the spec.
+    #[arg(long, value_name = "FILE")]
+    pub stl: Option<PathBuf>,
+    /// Multiplies the STL model's coordinates (0.001 for a model in millimetres).
+    #[arg(long, default_value_t = 1.0, requires = "stl")]
+    pub stl_scale: f64,
     /// Directory of settled beds (`<bed key>.json`): reused when present, stored when built.
     #[arg(long)]
     pub bed_cache: Option<PathBuf>,
@@ -54,6 +63,11 @@ fn effective_spec(args: &DrillArgs) -> Result<DrillSpec> {
         None => DrillSpec::preset(&args.preset)?,
     };
     spec.apply_assignments(args.set.iter().map(String::as_str))?;
+    if let Some(path) = &args.stl {
+        let bytes =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        spec.auger_stl = Some(StlDrill::from_bytes(&bytes, args.stl_scale));
+    }
     spec.validate()?;
     Ok(spec)
 }

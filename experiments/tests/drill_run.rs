@@ -2,12 +2,14 @@
 //! auger, deeper feeds give deeper holes, the torque rises as the auger enters the soil, the bed
 //! can be stored and reused exactly, results survive JSON.
 
+mod common;
+
 use std::sync::OnceLock;
 
 use repose_experiments::catalog::{prepare_spec, run_experiment_with_beds, BedStore};
 use repose_experiments::drill::{
     bed_key, build_bed, run_drill, run_drill_on_bed, Control, DrillError, DrillResult, DrillRun,
-    DrillSpec, DrillStatus, SettledBed,
+    DrillSpec, DrillStatus, SettledBed, StlDrill,
 };
 
 fn fast() -> DrillSpec {
@@ -255,4 +257,26 @@ fn runs_of_a_batch_share_a_bed_only_when_its_seed_is_fixed() {
     a.set("bed.seed", "7").unwrap();
     b.set("bed.seed", "7").unwrap();
     assert_eq!(bed_key(&a), bed_key(&b));
+}
+
+#[test]
+fn an_stl_drill_makes_the_same_kind_of_hole_as_the_generated_auger() {
+    // The generated fast auger, exported as STL (float32 corners) and drilled like any model.
+    let mut spec = fast();
+    spec.auger_stl = Some(StlDrill::from_bytes(&common::fast_auger_stl(), 1.0));
+    spec.validate().unwrap();
+    let run = run_drill_on_bed(&spec, bed().clone(), &mut |_| Control::Continue).unwrap();
+    let r = &run.result;
+    assert_eq!(r.status, DrillStatus::Ok, "{}", brief(r));
+    let generated = &deep().result;
+    let (stl_open, gen_open) = (
+        r.opening_diameter_mm.unwrap(),
+        generated.opening_diameter_mm.unwrap(),
+    );
+    assert!(stl_open >= r.auger_diameter_mm, "{}", brief(r));
+    assert!(
+        (stl_open - gen_open).abs() < 0.2 * gen_open,
+        "STL {stl_open} mm vs generated {gen_open} mm"
+    );
+    assert!(r.effective_depth_mm.unwrap() > 0.0);
 }

@@ -2,7 +2,11 @@
 //! keys.
 
 use repose_experiments::aor::AorSpec;
-use repose_experiments::drill::{bed_key, DrillSpec, SpecError, PRESETS};
+mod common;
+
+use common::fast_auger_stl;
+use repose_engine::math::Pose;
+use repose_experiments::drill::{bed_key, DrillSpec, SpecError, StlDrill, PRESETS};
 
 #[test]
 fn presets_validate_and_round_trip_through_json() {
@@ -184,4 +188,35 @@ fn the_bed_key_follows_the_bed_inputs_only() {
     let mut b = base.clone();
     b.apply_assignments(["bed.seed=5", "seed=2"]).unwrap();
     assert_eq!(bed_key(&a), bed_key(&b));
+}
+
+#[test]
+fn an_stl_drill_is_checked_against_the_stated_diameter_and_its_tip() {
+    let stl = fast_auger_stl();
+    let mut spec = DrillSpec::fast();
+    spec.auger_stl = Some(StlDrill::from_bytes(&stl, 1.0));
+    spec.validate().unwrap();
+    // Round trip through JSON (the spec a job server stores and sends).
+    let back = DrillSpec::from_json(&spec.to_json()).unwrap();
+    assert_eq!(back, spec);
+
+    // A model in the wrong units is not the stated diameter.
+    spec.auger_stl = Some(StlDrill::from_bytes(&stl, 2.0));
+    assert_eq!(invalid_path(&spec), "auger.outer_diameter");
+    // Not base64, or not an STL.
+    spec.auger_stl = Some(StlDrill {
+        base64: "%%%".into(),
+        scale: 1.0,
+    });
+    assert_eq!(invalid_path(&spec), "auger_stl");
+    spec.auger_stl = Some(StlDrill::from_bytes(b"solid nothing here", 1.0));
+    assert_eq!(invalid_path(&spec), "auger_stl");
+    // The tip must be at the origin.
+    let lifted = repose_engine::mesh::TriMesh::from_stl_bytes(&stl, 1.0)
+        .unwrap()
+        .transformed(&Pose::translation(0.0, 0.0, 0.01))
+        .unwrap()
+        .to_stl_binary();
+    spec.auger_stl = Some(StlDrill::from_bytes(&lifted, 1.0));
+    assert_eq!(invalid_path(&spec), "auger_stl");
 }

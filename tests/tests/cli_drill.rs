@@ -105,3 +105,64 @@ fn drill_bad_input_is_one_line_and_exit_2() {
         assert!(err.contains(needle), "{err}");
     }
 }
+
+#[test]
+fn an_stl_drill_is_embedded_in_the_spec_and_checked() {
+    use repose_engine::mesh::generators::{auger, AugerSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let a = repose_experiments::drill::DrillSpec::fast().auger;
+    let model = auger(&AugerSpec {
+        shaft_diameter: a.shaft_diameter,
+        flight_outer_diameter: a.outer_diameter,
+        pitch: a.pitch,
+        flight_length: 0.08,
+        flight_thickness: a.flight_thickness,
+        shaft_length: 0.12,
+        tip_length: a.tip_length,
+        segments_per_turn: a.segments_per_turn,
+        right_handed: true,
+    })
+    .unwrap();
+    // The same auger in millimetres, as ASCII STL.
+    let ascii: String = model
+        .to_stl_ascii("auger")
+        .lines()
+        .map(|line| match line.trim_start().strip_prefix("vertex ") {
+            Some(xyz) => {
+                let v: Vec<String> = xyz
+                    .split_whitespace()
+                    .map(|c| format!("{}", c.parse::<f64>().unwrap() * 1000.0))
+                    .collect();
+                format!("vertex {}\n", v.join(" "))
+            }
+            None => format!("{line}\n"),
+        })
+        .collect();
+    let file = dir.path().join("auger_mm.stl");
+    std::fs::write(&file, ascii).unwrap();
+    let path = file.to_str().unwrap();
+
+    let o = repose(&[
+        "drill",
+        "--preset",
+        "fast",
+        "--stl",
+        path,
+        "--stl-scale",
+        "0.001",
+        "--print-spec",
+    ]);
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let spec: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(spec["auger_stl"]["scale"], 0.001);
+    assert!(spec["auger_stl"]["base64"].as_str().unwrap().len() > 1000);
+
+    // Left in millimetres, the model is a thousand times the stated diameter.
+    let o = repose(&["drill", "--preset", "fast", "--stl", path, "--print-spec"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("auger.outer_diameter"),
+        "{}",
+        stderr(&o)
+    );
+}

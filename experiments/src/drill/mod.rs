@@ -31,5 +31,5 @@ pub use run::{
 };
 pub use spec::{
     AugerGeometry, BedSpec, BinSpec, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SettleSpec,
-    SpecError, PRESETS,
+    SpecError, StlDrill, PRESETS,
 };

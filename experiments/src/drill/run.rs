@@ -322,18 +322,24 @@ fn drill(
     // original surface at full depth; the shaft goes one pitch further.
     let flight_length = (d.depth - a.tip_length + a.flight_above_surface).max(a.pitch);
     let shaft_length = a.tip_length + flight_length + 0.5 * a.flight_thickness + a.pitch;
-    let mesh = auger(&AugerSpec {
-        shaft_diameter: a.shaft_diameter,
-        flight_outer_diameter: a.outer_diameter,
-        pitch: a.pitch,
-        flight_length,
-        flight_thickness: a.flight_thickness,
-        shaft_length,
-        tip_length: a.tip_length,
-        segments_per_turn: a.segments_per_turn,
-        right_handed: true,
-    })
-    .map_err(|e| build_error("auger", e))?;
+    let generated = || {
+        auger(&AugerSpec {
+            shaft_diameter: a.shaft_diameter,
+            flight_outer_diameter: a.outer_diameter,
+            pitch: a.pitch,
+            flight_length,
+            flight_thickness: a.flight_thickness,
+            shaft_length,
+            tip_length: a.tip_length,
+            segments_per_turn: a.segments_per_turn,
+            right_handed: true,
+        })
+        .map_err(|e| build_error("auger", e))
+    };
+    let mesh = match &spec.auger_stl {
+        Some(stl) => stl.mesh().map_err(|e| build_error("auger_stl", e))?,
+        None => generated()?,
+    };
     let t_feed = travel / d.feed_speed;
     let t_withdraw = t_feed + travel / d.withdraw_speed;
     let t_lift = t_withdraw + d.lift_height / d.lift_speed;

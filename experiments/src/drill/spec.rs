@@ -19,6 +19,7 @@
 //! | `bed.settle.*` | at-rest criteria of the bed (`min_time`, `check_interval`, `kinetic_energy_threshold`, `time_cap`, `stable_tolerance_diameters`, `stable_window`) | 0.3 / 0.05 / 1e-3 / 3 / 0.1 / 3 |
 //! | `auger.outer_diameter` / `.pitch` / `.shaft_diameter` / `.flight_thickness` / `.tip_length` | auger, m | 0.06 / 0.06 / 0.02 / 0.004 / 0.015 |
 //! | `auger.flight_above_surface` | flighted length above the original surface at full depth, m | 0.03 |
+//! | `auger_stl.base64` / `.scale` | a drill of any shape: an STL file (base64), tip at the origin, axis +z, used instead of the generated auger; `auger.outer_diameter` must state its diameter | none / 1 |
 //! | `auger.segments_per_turn` | facets per turn | 48 |
 //! | `drill.rpm` / `.clockwise` | spin, r/min, and its sense seen from above | 400 / true |
 //! | `drill.feed_speed` / `.depth` / `.withdraw_speed` | m/s, m (tip below the original surface), m/s | 0.02 / 0.1 / 0.02 |
@@ -49,6 +50,7 @@
 use repose_engine::contact::RollingModel;
 use repose_engine::distribution::SizeDistributionSpec;
 use repose_engine::material::{Interaction, MaterialSet};
+use repose_engine::mesh::TriMesh;
 use serde::{Deserialize, Serialize};
 
 use crate::aor::{AorSpec, Materials, RollingSpec};
@@ -138,6 +140,45 @@ pub struct AugerGeometry {
     pub segments_per_turn: usize,
 }
 
+/// A drill of any shape from an STL model (binary or ASCII). The model's tip is at its origin
+/// and its axis is +z; the run places it above the surface and turns and feeds it like the
+/// generated auger. `auger.outer_diameter` must state the drill's diameter: the hole is
+/// measured against it (checked against the model within 10 %).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StlDrill {
+    /// The STL file's bytes, base64: the spec stays one JSON document that a job server can
+    /// send to any worker.
+    pub base64: String,
+    /// Multiplies the model's coordinates (0.001 for a model in millimetres).
+    #[serde(default = "one")]
+    pub scale: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl StlDrill {
+    /// From the bytes of an STL file.
+    pub fn from_bytes(bytes: &[u8], scale: f64) -> StlDrill {
+        use base64::prelude::{Engine as _, BASE64_STANDARD};
+        StlDrill {
+            base64: BASE64_STANDARD.encode(bytes),
+            scale,
+        }
+    }
+
+    /// The model as a mesh, in metres; the error says what is wrong with it.
+    pub fn mesh(&self) -> Result<TriMesh, String> {
+        use base64::prelude::{Engine as _, BASE64_STANDARD};
+        let bytes = BASE64_STANDARD
+            .decode(self.base64.trim())
+            .map_err(|e| format!("not base64: {e}"))?;
+        TriMesh::from_stl_bytes_named(&bytes, self.scale, "auger_stl").map_err(|e| e.to_string())
+    }
+}
+
 /// Kinematics of the test.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -210,6 +251,10 @@ pub struct DrillSpec {
     pub bin: BinSpec,
     pub bed: BedSpec,
     pub auger: AugerGeometry,
+    /// A drill of any shape from STL, used instead of the generated auger (`auger.*` other
+    /// than `outer_diameter` is then unused).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub auger_stl: Option<StlDrill>,
     pub drill: DrillMotionSpec,
     /// At rest after the auger is out.
     pub settle: SettleSpec,
@@ -284,6 +329,7 @@ impl DrillSpec {
                 flight_above_surface: 0.03,
                 segments_per_turn: 48,
             },
+            auger_stl: None,
             drill: DrillMotionSpec {
                 rpm: 400.0,
                 clockwise: true,
@@ -462,6 +508,38 @@ impl DrillSpec {
         }
         let a = &self.auger;
         positive("auger.outer_diameter", a.outer_diameter)?;
+        if let Some(stl) = &self.auger_stl {
+            positive("auger_stl.scale", stl.scale)?;
+            let mesh = stl.mesh().map_err(|e| invalid("auger_stl", e))?;
+            let reach = mesh
+                .vertices()
+                .iter()
+                .map(|v| v.x.hypot(v.y))
+                .fold(0.0, f64::max);
+            if (2.0 * reach - a.outer_diameter).abs() > 0.1 * a.outer_diameter {
+                return Err(invalid(
+                    "auger.outer_diameter",
+                    format!(
+                        "the STL drill is {:.1} mm across (auger_stl, scale {}), but \
+                         auger.outer_diameter says {:.1} mm; the hole is measured against it",
+                        2e3 * reach,
+                        stl.scale,
+                        1e3 * a.outer_diameter
+                    ),
+                ));
+            }
+            let (low, _) = mesh.aabb();
+            if low.z.abs() > 0.05 * a.outer_diameter {
+                return Err(invalid(
+                    "auger_stl",
+                    format!(
+                        "the model's lowest point is at z = {:.1} mm: put the drill's tip at \
+                         the origin, axis +z",
+                        1e3 * low.z
+                    ),
+                ));
+            }
+        }
         positive("auger.pitch", a.pitch)?;
         positive("auger.shaft_diameter", a.shaft_diameter)?;
         positive("auger.flight_thickness", a.flight_thickness)?;
