@@ -1,0 +1,314 @@
+//! The per-particle work shared by both dispatch paths: one particle's own pairs and geometry
+//! contacts, and its gather + integration.
+
+use super::*;
+use crate::contact::{epsd_rolling_stiffness, epsd_rolling_torque, hertz_mindlin};
+
+/// Step-constant inputs of the contact law.
+pub(super) struct ContactContext<'a> {
+    pub(super) t: f64,
+    /// Spring time step (0 for the Verlet start-up evaluation).
+    pub(super) dt: f64,
+    pub(super) gravity: Vec3,
+    pub(super) domain: Domain,
+    pub(super) rolling_model: RollingModel,
+    pub(super) materials: &'a MaterialTable,
+    pub(super) geometries: &'a [Geometry],
+    pub(super) placed: &'a [PlacedGeometry],
+}
+
+/// The particle arrays the contact law reads.
+pub(super) struct ParticleReads<'a> {
+    pub(super) position: &'a [Vec3],
+    pub(super) velocity: &'a [Vec3],
+    pub(super) angular_velocity: &'a [Vec3],
+    pub(super) radius: &'a [f64],
+    pub(super) mass: &'a [f64],
+    pub(super) inverse_inertia: &'a [f64],
+    pub(super) material: &'a [MaterialId],
+}
+
+/// Reusable buffers of the geometry contacts.
+#[derive(Default)]
+pub(super) struct Scratch {
+    pub(super) mesh_contacts: Vec<MeshContact>,
+    pub(super) new_walls: Vec<WallHistory>,
+}
+
+/// Step-constant inputs of the gather + integrate step.
+pub(super) struct GatherContext {
+    pub(super) dt: f64,
+    pub(super) domain: Domain,
+    pub(super) half_skin2: f64,
+    pub(super) cdt: bool,
+    pub(super) after: AfterForces,
+}
+
+/// The state one particle's gather + integrate step writes.
+pub(super) struct ParticleState<'a> {
+    pub(super) force: &'a mut Vec3,
+    pub(super) torque: &'a mut Vec3,
+    pub(super) position: &'a mut Vec3,
+    pub(super) velocity: &'a mut Vec3,
+    pub(super) angular_velocity: &'a mut Vec3,
+}
+
+/// Particle i's own pairs (`partner`, with their histories and partner shares) and its
+/// geometry contacts. Returns i's force, torque and CDT rolling moment from these.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(super) fn particle_contacts(
+    ctx: &ContactContext,
+    r: &ParticleReads,
+    i: usize,
+    partner: &mut [u32],
+    tangential: &mut [Vec3],
+    rolling: &mut [Vec3],
+    share: &mut [PartnerShare],
+    walls: &mut Vec<WallHistory>,
+    scratch: &mut Scratch,
+    loads: &mut [(Vec3, Vec3)],
+) -> (Vec3, Vec3, f64) {
+    let dt = ctx.dt;
+    let domain = &ctx.domain;
+    let materials = ctx.materials;
+    let rolling_model = ctx.rolling_model;
+    let use_rolling_spring = !rolling.is_empty();
+    let xi = r.position[i];
+    let vi = r.velocity[i];
+    let wi = r.angular_velocity[i];
+    let ri = r.radius[i];
+    let mi = r.mass[i];
+    let mat_i = r.material[i];
+    let mut f = ctx.gravity * mi;
+    let mut tq = Vec3::zeros();
+    let mut moment = 0.0;
+    for (local, entry) in partner.iter_mut().enumerate() {
+        let j = (*entry & PARTNER_INDEX) as usize;
+        let rj = r.radius[j];
+        let d = domain.minimum_image(xi - r.position[j]);
+        let dist2 = d.norm_squared();
+        let rsum = ri + rj;
+        if dist2 >= rsum * rsum {
+            // Not touching: histories are reset (only if set), the share is left stale.
+            if *entry & IN_CONTACT != 0 {
+                *entry &= PARTNER_INDEX;
+                tangential[local] = Vec3::zeros();
+                if use_rolling_spring {
+                    rolling[local] = Vec3::zeros();
+                }
+            }
+            continue;
+        }
+        *entry |= IN_CONTACT;
+        let dist = dist2.sqrt();
+        // One division, not nalgebra's three for `d / dist`.
+        let normal = d * (1.0 / dist);
+        let overlap = rsum - dist;
+        // Contact point halfway through the overlap.
+        let lever_i = ri - 0.5 * overlap;
+        let lever_j = rj - 0.5 * overlap;
+        let wj = r.angular_velocity[j];
+        let relative_velocity = vi - r.velocity[j] - (wi * lever_i + wj * lever_j).cross(&normal);
+        let mj = r.mass[j];
+        let r_star = ri * rj / rsum;
+        let m_star = mi * mj / (mi + mj);
+        let constants = materials.pair(mat_i, r.material[j]);
+        let contact = hertz_mindlin(
+            constants,
+            r_star,
+            m_star,
+            overlap,
+            normal,
+            relative_velocity,
+            dt,
+            &mut tangential[local],
+        );
+        let n_cross_f = normal.cross(&contact.force);
+        f += contact.force;
+        tq -= n_cross_f * lever_i;
+        let mut torque_j = -n_cross_f * lever_j;
+        let mut moment_j = 0.0;
+        match rolling_model {
+            RollingModel::ConstantDirectionalTorque => {
+                let m = constants.rolling_friction * contact.normal_force;
+                moment += m * lever_i;
+                moment_j = m * lever_j;
+            }
+            RollingModel::ElasticPlasticSpringDashpot { viscous_damping } => {
+                let kr = epsd_rolling_stiffness(
+                    contact.normal_stiffness,
+                    constants.rolling_friction,
+                    r_star,
+                );
+                let inertia_i = 1.0 / r.inverse_inertia[i] + mi * ri * ri;
+                let inertia_j = 1.0 / r.inverse_inertia[j] + mj * rj * rj;
+                let inertia_r = inertia_i * inertia_j / (inertia_i + inertia_j);
+                let mr = epsd_rolling_torque(
+                    normal,
+                    wi - wj,
+                    kr,
+                    constants.rolling_friction * r_star * contact.normal_force,
+                    viscous_damping * 2.0 * (inertia_r * kr).sqrt(),
+                    dt,
+                    &mut rolling[local],
+                );
+                tq += mr;
+                torque_j -= mr;
+            }
+        }
+        share[local] = PartnerShare {
+            force: -contact.force,
+            torque: torque_j,
+            rolling_moment: moment_j,
+        };
+    }
+
+    // Geometry contacts, geometry by geometry, in mesh order.
+    if ctx.geometries.is_empty() {
+        return (f, tq, moment);
+    }
+    let Scratch {
+        mesh_contacts,
+        new_walls,
+    } = scratch;
+    new_walls.clear();
+    for (g, (geometry, placement)) in ctx.geometries.iter().zip(ctx.placed).enumerate() {
+        let reach = Vec3::repeat(ri);
+        let (lo, hi) = (xi - reach, xi + reach);
+        if (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a]) {
+            continue;
+        }
+        mesh_contacts.clear();
+        let body_centre = placement.inverse.transform_point(&xi.into()).coords;
+        geometry
+            .mesh
+            .sphere_contacts(body_centre, ri, mesh_contacts);
+        for mc in mesh_contacts.iter() {
+            let point = placement.pose.transform_point(&mc.point.into()).coords;
+            let normal = placement.pose.rotation * mc.normal;
+            // The previous contact with this geometry whose normal is closest.
+            let previous = walls
+                .iter()
+                .filter(|h| h.geometry == g as u32)
+                .map(|h| (h.normal.dot(&normal), h))
+                .filter(|(dot, _)| *dot > 0.9)
+                .max_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|(_, h)| *h);
+            let mut history = previous.unwrap_or(WallHistory {
+                geometry: g as u32,
+                normal,
+                tangential: Vec3::zeros(),
+                rolling: Vec3::zeros(),
+            });
+            history.normal = normal;
+            let arm = point - xi;
+            let wall_velocity = geometry.motion.velocity_of_point(point, ctx.t);
+            let relative_velocity = vi + wi.cross(&arm) - wall_velocity;
+            let constants = materials.pair(mat_i, geometry.material);
+            let contact = hertz_mindlin(
+                constants,
+                ri,
+                mi,
+                mc.overlap,
+                normal,
+                relative_velocity,
+                dt,
+                &mut history.tangential,
+            );
+            f += contact.force;
+            tq += arm.cross(&contact.force);
+            match rolling_model {
+                RollingModel::ConstantDirectionalTorque => {
+                    moment += constants.rolling_friction * contact.normal_force * arm.norm();
+                }
+                RollingModel::ElasticPlasticSpringDashpot { viscous_damping } => {
+                    let kr = epsd_rolling_stiffness(
+                        contact.normal_stiffness,
+                        constants.rolling_friction,
+                        ri,
+                    );
+                    let inertia_r = 1.0 / r.inverse_inertia[i] + mi * ri * ri;
+                    tq += epsd_rolling_torque(
+                        normal,
+                        wi - placement.angular_velocity,
+                        kr,
+                        constants.rolling_friction * ri * contact.normal_force,
+                        viscous_damping * 2.0 * (inertia_r * kr).sqrt(),
+                        dt,
+                        &mut history.rolling,
+                    );
+                }
+            }
+            let load = &mut loads[g];
+            load.0 -= contact.force;
+            load.1 += (point - placement.reference_point).cross(&-contact.force);
+            new_walls.push(history);
+        }
+    }
+    if !new_walls.is_empty() || !walls.is_empty() {
+        walls.clear();
+        walls.extend_from_slice(new_walls);
+    }
+    (f, tq, moment)
+}
+
+/// Particle i adds the shares of the pairs in contact it is the higher index of (`incident`,
+/// flagged in `partner`) to its own
+/// force, torque and CDT moment, applies CDT rolling friction, then integrates. Returns
+/// whether it moved far enough (or out of the domain) to need a rebuild.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(super) fn gather_particle(
+    g: &GatherContext,
+    mut force: Vec3,
+    mut torque: Vec3,
+    mut rolling: f64,
+    incident: &[u32],
+    partner: &[u32],
+    shares: &[PartnerShare],
+    mass: f64,
+    inv_i: f64,
+    position_at_build: [f32; 3],
+    s: ParticleState,
+) -> bool {
+    let dt = g.dt;
+    let domain = &g.domain;
+    for &pair in incident {
+        if partner[pair as usize] & IN_CONTACT == 0 {
+            continue;
+        }
+        let share = &shares[pair as usize];
+        force += share.force;
+        torque += share.torque;
+        rolling += share.rolling_moment;
+    }
+    let w = s.angular_velocity;
+    if g.cdt && rolling > 0.0 {
+        // Constant directional torque against ω, limited so that on its own it can at most
+        // stop the rotation within this step (no chatter).
+        let speed = w.norm();
+        if speed > 0.0 {
+            let magnitude = rolling.min(speed / (inv_i * dt));
+            torque -= *w * (magnitude / speed);
+        }
+    }
+    *s.force = force;
+    *s.torque = torque;
+    let (x, v) = (s.position, s.velocity);
+    match g.after {
+        AfterForces::EulerUpdate => {
+            *v += force * (dt / mass);
+            *w += torque * (dt * inv_i);
+            *x = domain.wrap(*x + *v * dt);
+            let moved = domain.minimum_image(*x - double(position_at_build));
+            moved.norm_squared() > g.half_skin2 || domain.is_outside(*x)
+        }
+        AfterForces::HalfKick => {
+            *v += force * (0.5 * dt / mass);
+            *w += torque * (0.5 * dt * inv_i);
+            false
+        }
+        AfterForces::Nothing => false,
+    }
+}
