@@ -398,6 +398,44 @@ proptest! {
         })?;
     }
 
+    /// The world's cached wall candidates: a sphere whose distance to the mesh has changed by
+    /// less than `skin` since its candidates were listed (radius + skin; in the world, up to
+    /// skin/2 from the particle and skin/2 from the geometry) finds, among them, exactly the
+    /// contacts of the full search.
+    #[test]
+    fn candidate_triangles_find_the_same_contacts_as_the_full_search(
+        which in 0usize..5,
+        u in 0.0..1.0f64, v in 0.0..1.0f64, w in 0.0..1.0f64,
+        radius_fraction in 0.001..0.3f64,
+        skin_fraction in 0.0..1.0f64,
+        dx in -1.0..1.0f64, dy in -1.0..1.0f64, dz in -1.0..1.0f64,
+    ) {
+        thread_local! {
+            static MESHES: Vec<TriMesh> = meshes_for_comparison();
+        }
+        MESHES.with(|meshes| {
+            let mesh = &meshes[which];
+            let (lo, hi) = mesh.aabb();
+            let size = hi - lo;
+            let margin = 0.1 * size.max();
+            let listed_at = lo - Vec3::repeat(margin)
+                + Vec3::new(u, v, w).component_mul(&(size + Vec3::repeat(2.0 * margin)));
+            let radius = radius_fraction * size.max();
+            let skin = skin_fraction * radius;
+            let mut candidates = Vec::new();
+            mesh.triangles_near(listed_at, radius + skin, &mut candidates);
+            prop_assert!(candidates.windows(2).all(|p| p[0] < p[1]));
+            let step = Vec3::new(dx, dy, dz);
+            let center = listed_at + step * (0.999 * skin / step.norm().max(1.0));
+            let mut among = Vec::new();
+            mesh.sphere_contacts_among(center, radius, &candidates, &mut among);
+            let mut full = Vec::new();
+            mesh.sphere_contacts(center, radius, &mut full);
+            assert_same_contacts(among, full, &format!("mesh {which} at {center:?} r {radius}"));
+            Ok(())
+        })?;
+    }
+
     #[test]
     fn facetted_tube_wall_gives_exactly_one_contact_inside_and_outside(
         phi in 0.0..TAU,

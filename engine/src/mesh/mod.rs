@@ -375,6 +375,83 @@ impl TriMesh {
         self.merge_smooth(start, out);
     }
 
+    /// Appends, in ascending order, the triangles whose closest point to `center` is nearer
+    /// than `reach`: every triangle a sphere of radius `r` can touch while its centre stays
+    /// within `reach - r` of `center`. The world keeps these lists between neighbour rebuilds
+    /// so that a step tests a few triangles instead of walking the grid.
+    pub fn triangles_near(&self, center: Vec3, reach: f64, out: &mut Vec<u32>) {
+        if !Self::query_is_valid(center, reach) {
+            return;
+        }
+        let start = out.len();
+        let r = Vec3::repeat(reach);
+        let (lo, hi) = (center - r, center + r);
+        let reach2 = reach * reach;
+        self.grid.for_each_candidate(lo, hi, |t| {
+            let (tlo, thi) = self.triangle_bounds[t as usize];
+            if boxes_overlap(lo, hi, tlo, thi) {
+                let [a, b, c] = self.corners(t as usize);
+                let (point, _) = closest_point_on_triangle(center, a, b, c);
+                if (center - point).norm_squared() < reach2 {
+                    out.push(t);
+                }
+            }
+        });
+        out[start..].sort_unstable();
+    }
+
+    /// [`TriMesh::sphere_contacts`] testing only `candidates`, which must hold every triangle
+    /// within `radius` of `center` (from [`TriMesh::triangles_near`] with a large enough
+    /// reach). Same contacts as the grid query: the triangles it would find are all among the
+    /// candidates, and the result does not depend on the order they are visited.
+    pub fn sphere_contacts_among(
+        &self,
+        center: Vec3,
+        radius: f64,
+        candidates: &[u32],
+        out: &mut Vec<MeshContact>,
+    ) {
+        if !Self::query_is_valid(center, radius) {
+            return;
+        }
+        let start = out.len();
+        let mut rejected = RejectedFeatures::default();
+        let reach = Vec3::repeat(radius);
+        let (lo, hi) = (center - reach, center + reach);
+        let radius2 = radius * radius;
+        for &t in candidates {
+            let (tlo, thi) = self.triangle_bounds[t as usize];
+            if !boxes_overlap(lo, hi, tlo, thi) {
+                continue;
+            }
+            // The triangle's plane is no farther than any point of it: a sphere clear of the
+            // plane is clear of the triangle (one dot product instead of the closest point).
+            let a = self.vertices[self.triangles[t as usize][0] as usize];
+            let height = self.normals[t as usize].dot(&(center - a));
+            if height * height >= radius2 {
+                continue;
+            }
+            self.add_triangle_contact(t, center, radius, start, &mut rejected, out);
+        }
+        self.merge_smooth(start, out);
+    }
+
+    /// Largest distance of any vertex from the body origin (bounds how far a point of the
+    /// mesh moves when the body turns).
+    pub fn max_vertex_distance(&self) -> f64 {
+        let (lo, hi) = self.aabb();
+        (0..8)
+            .map(|corner| {
+                Vec3::new(
+                    if corner & 1 == 0 { lo.x } else { hi.x },
+                    if corner & 2 == 0 { lo.y } else { hi.y },
+                    if corner & 4 == 0 { lo.z } else { hi.z },
+                )
+                .norm()
+            })
+            .fold(0.0, f64::max)
+    }
+
     /// Same result as [`TriMesh::sphere_contacts`] by testing every triangle: the reference
     /// the broad phase is checked against, O(triangles) per query.
     pub fn sphere_contacts_brute_force(

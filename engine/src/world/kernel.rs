@@ -1,6 +1,7 @@
 //! The per-particle work shared by both dispatch paths: one particle's own pairs and geometry
 //! contacts, and its gather + integration.
 
+use super::walls::WallCandidates;
 use super::*;
 use crate::contact::{epsd_rolling_stiffness, epsd_rolling_torque, hertz_mindlin};
 
@@ -15,6 +16,7 @@ pub(super) struct ContactContext<'a> {
     pub(super) materials: &'a MaterialTable,
     pub(super) geometries: &'a [Geometry],
     pub(super) placed: &'a [PlacedGeometry],
+    pub(super) walls: &'a WallCandidates,
 }
 
 /// The particle arrays the contact law reads.
@@ -173,17 +175,38 @@ pub(super) fn particle_contacts(
         new_walls,
     } = scratch;
     new_walls.clear();
+    // Candidates are sorted by geometry: one cursor walks them alongside the geometries.
+    let (candidate_geometry, candidate_triangle) = ctx.walls.of(i);
+    let mut cursor = 0;
     for (g, (geometry, placement)) in ctx.geometries.iter().zip(ctx.placed).enumerate() {
-        let reach = Vec3::repeat(ri);
-        let (lo, hi) = (xi - reach, xi + reach);
-        if (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a]) {
-            continue;
+        let first = cursor;
+        while cursor < candidate_geometry.len() && candidate_geometry[cursor] == g as u32 {
+            cursor += 1;
         }
-        mesh_contacts.clear();
-        let body_centre = placement.inverse.transform_point(&xi.into()).coords;
-        geometry
-            .mesh
-            .sphere_contacts(body_centre, ri, mesh_contacts);
+        if placement.cached {
+            if first == cursor {
+                continue;
+            }
+            mesh_contacts.clear();
+            let body_centre = placement.inverse.transform_point(&xi.into()).coords;
+            geometry.mesh.sphere_contacts_among(
+                body_centre,
+                ri,
+                &candidate_triangle[first..cursor],
+                mesh_contacts,
+            );
+        } else {
+            let reach = Vec3::repeat(ri);
+            let (lo, hi) = (xi - reach, xi + reach);
+            if (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a]) {
+                continue;
+            }
+            mesh_contacts.clear();
+            let body_centre = placement.inverse.transform_point(&xi.into()).coords;
+            geometry
+                .mesh
+                .sphere_contacts(body_centre, ri, mesh_contacts);
+        }
         for mc in mesh_contacts.iter() {
             let point = placement.pose.transform_point(&mc.point.into()).coords;
             let normal = placement.pose.rotation * mc.normal;

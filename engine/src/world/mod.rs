@@ -28,6 +28,7 @@ mod kernel;
 mod passes;
 mod spawn;
 mod step;
+mod walls;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -63,6 +64,24 @@ pub struct WorldConfig {
     /// about 4.3 pairs per particle in a dense bed while a particle at 1 m/s with a Rayleigh
     /// step still travels ~5 steps per rebuild.
     pub skin_fraction: f64,
+    /// Upper bound of the adaptive skin, as a fraction of the largest particle diameter. At a
+    /// rebuild the skin is chosen so that the fastest particle needs about
+    /// `rebuild_target_steps` steps to cross half of it, within [`Self::skin_fraction`,
+    /// `skin_fraction_max`]: a fast stream (a pour) then rebuilds every ~10 steps instead of
+    /// every 2-3, while a slow bed keeps the thin skin (fewer pairs). Equal to
+    /// `skin_fraction` (or `rebuild_target_steps` 0): a fixed skin.
+    #[serde(default = "default_skin_fraction_max")]
+    pub skin_fraction_max: f64,
+    /// See [`Self::skin_fraction_max`]; 0 disables the adaptive skin.
+    #[serde(default = "default_rebuild_target_steps")]
+    pub rebuild_target_steps: u32,
+    /// Particle sources are served when the pair list is rebuilt anyway, and at least every
+    /// this many steps (a source's particles then all enter together and force one rebuild).
+    /// Inserting a grain means a rebuild; serving sources every step made a pour rebuild every
+    /// 2-3 steps. Sources keep their own books, so the mass rate is unchanged; a grain enters
+    /// at most this many steps after it was due. 1: every step.
+    #[serde(default = "default_insertion_interval")]
+    pub insertion_interval: u32,
     /// Spatially re-sort the particle arrays (cell order) every this many pair-list rebuilds;
     /// 0 never sorts.
     pub sort_every_rebuilds: u32,
@@ -72,8 +91,21 @@ pub struct WorldConfig {
     pub seed: u64,
 }
 
+fn default_skin_fraction_max() -> f64 {
+    0.5
+}
+
+fn default_rebuild_target_steps() -> u32 {
+    12
+}
+
+fn default_insertion_interval() -> u32 {
+    10
+}
+
 impl WorldConfig {
-    /// Defaults: standard gravity, symplectic Euler, CDT rolling friction, skin 0.15 d.
+    /// Defaults: standard gravity, symplectic Euler, CDT rolling friction, skin 0.15 d growing
+    /// up to 0.5 d for fast particles, sources served at least every 10 steps.
     pub fn new(time_step: f64, domain: Domain) -> WorldConfig {
         WorldConfig {
             time_step,
@@ -82,6 +114,9 @@ impl WorldConfig {
             integrator: Integrator::SymplecticEuler,
             rolling_model: RollingModel::ConstantDirectionalTorque,
             skin_fraction: 0.15,
+            skin_fraction_max: default_skin_fraction_max(),
+            rebuild_target_steps: default_rebuild_target_steps(),
+            insertion_interval: default_insertion_interval(),
             sort_every_rebuilds: 4,
             geometry_record_interval: 1,
             seed: 0,
@@ -156,6 +191,9 @@ struct PlacedGeometry {
     aabb_max: Vec3,
     angular_velocity: Vec3,
     reference_point: Vec3,
+    /// The particles' candidate triangles of this geometry are complete (it has not moved
+    /// far since the last rebuild); otherwise its contacts are found by the grid query.
+    cached: bool,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -180,6 +218,8 @@ pub struct World {
     spawn_reports: Vec<SpawnReport>,
     spawned: Vec<NewParticle>,
     pairs: PairList,
+    /// Candidate triangles of each particle, built with the pair list.
+    walls: walls::WallCandidates,
     /// Scratch: CDT rolling moment sum per particle (own pairs + walls).
     rolling_moment: Vec<f64>,
     time: f64,
@@ -187,6 +227,8 @@ pub struct World {
     next_id: u64,
     removed: u64,
     rebuilds: u64,
+    /// Steps since the sources were last served.
+    steps_since_spawn: u32,
     needs_rebuild: bool,
     forces_current: bool,
     skin: f64,
@@ -201,6 +243,12 @@ impl World {
             config.skin_fraction,
             config.skin_fraction > 0.0,
             "> 0",
+        )?;
+        require(
+            "skin_fraction_max",
+            config.skin_fraction_max,
+            config.skin_fraction_max >= config.skin_fraction,
+            ">= skin_fraction",
         )?;
         for a in 0..3 {
             require(
@@ -230,6 +278,7 @@ impl World {
         Ok(World {
             config: WorldConfig {
                 geometry_record_interval: config.geometry_record_interval.max(1),
+                insertion_interval: config.insertion_interval.max(1),
                 ..config
             },
             materials,
@@ -240,12 +289,14 @@ impl World {
             spawn_reports: Vec::new(),
             spawned: Vec::new(),
             pairs: PairList::default(),
+            walls: walls::WallCandidates::default(),
             rolling_moment: Vec::new(),
             time: 0.0,
             steps: 0,
             next_id: 0,
             removed: 0,
             rebuilds: 0,
+            steps_since_spawn: 0,
             needs_rebuild: true,
             forces_current: false,
             skin: 0.0,
@@ -285,6 +336,8 @@ impl World {
         self.geometries.push(geometry);
         self.series.push(Vec::new());
         self.forces_current = false;
+        // The wall candidates cover the geometries present at the last rebuild.
+        self.needs_rebuild = true;
         Ok(GeometryId(self.geometries.len() as u32 - 1))
     }
 
@@ -393,7 +446,10 @@ impl World {
 
     /// Bytes of particle arrays, pair list and histories (lengths, not capacities).
     pub fn memory_bytes(&self) -> usize {
-        self.particles.memory_bytes() + self.pairs.memory_bytes() + self.rolling_moment.len() * 8
+        self.particles.memory_bytes()
+            + self.pairs.memory_bytes()
+            + self.walls.memory_bytes()
+            + self.rolling_moment.len() * 8
     }
 
     /// Time-step warnings for the smallest particle present, given the fastest expected impact
@@ -538,6 +594,66 @@ mod tests {
             per_step * 1e6,
             world.rebuild_count()
         );
+    }
+
+    /// A pour: grains inserted by a factory (at the deferred insertion points, with the
+    /// adaptive skin and the wall candidate lists) while the 3000-grain cloud flows onto the
+    /// floor. One thread (fused sweep) and two threads (parallel passes) must agree bit for
+    /// bit, insertions included.
+    #[test]
+    fn a_pour_is_bit_identical_for_one_and_two_threads() {
+        use crate::distribution::{SizeDistribution, SizeDistributionSpec};
+        use crate::factory::{Factory, FactorySpec, Region};
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut world = cloud(
+                    RollingModel::ConstantDirectionalTorque,
+                    Integrator::SymplecticEuler,
+                );
+                let soil = world.materials().id("soil").unwrap();
+                let size = SizeDistribution::new(SizeDistributionSpec::Uniform {
+                    min_radius: 0.0009,
+                    max_radius: 0.0011,
+                })
+                .unwrap();
+                let density = world.materials().material(soil).density;
+                let factory = Factory::new(
+                    FactorySpec {
+                        region: Region::Box {
+                            min: Vec3::new(0.002, 0.002, 0.15),
+                            max: Vec3::new(0.028, 0.028, 0.19),
+                        },
+                        mass_rate: 2.0,
+                        total_mass: 0.01,
+                        start_time: 0.0,
+                        velocity: Vec3::new(0.0, 0.0, -1.5),
+                        size,
+                        max_attempts_per_particle: 50,
+                    },
+                    density,
+                )
+                .unwrap();
+                world
+                    .add_source(ParticleSource::Factory(factory), soil)
+                    .unwrap();
+                world.run(400);
+                (
+                    world.state_hash(),
+                    world.particles().len(),
+                    world.rebuild_count(),
+                )
+            })
+        };
+        let (one, n_one, rebuilds) = run(1);
+        let (two, n_two, _) = run(2);
+        assert!(n_one > 3100, "the factory inserted {} grains", n_one - 3000);
+        assert!(rebuilds > 5, "{rebuilds} rebuilds");
+        assert_eq!(n_one, n_two);
+        assert_eq!(one, two);
     }
 
     /// The fused sequential sweep (one thread) and the parallel passes (two threads, more

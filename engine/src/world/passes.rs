@@ -20,6 +20,7 @@ impl World {
             materials: &self.materials,
             geometries: &self.geometries,
             placed,
+            walls: &self.walls,
         }
     }
 

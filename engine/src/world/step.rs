@@ -1,6 +1,7 @@
 //! The step loop, neighbour rebuilds and geometry placement.
 
 use super::passes::SEQUENTIAL_BELOW;
+use super::walls::{displacement_bound, world_aabb};
 use super::*;
 
 impl World {
@@ -20,12 +21,16 @@ impl World {
 
     /// Advance one time step.
     pub fn step(&mut self) {
-        self.spawn_from_sources();
-        if self.needs_rebuild {
-            self.rebuild();
+        self.steps_since_spawn += 1;
+        if self.needs_rebuild || self.steps_since_spawn >= self.config.insertion_interval {
+            self.steps_since_spawn = 0;
+            self.spawn_from_sources();
         }
         let t = self.time;
         let dt = self.config.time_step;
+        if self.needs_rebuild {
+            self.rebuild(t);
+        }
         let record = (self.steps + 1) % self.config.geometry_record_interval == 0;
         match self.config.integrator {
             Integrator::SymplecticEuler => {
@@ -37,7 +42,7 @@ impl World {
                 }
                 self.kick_drift();
                 if self.needs_rebuild {
-                    self.rebuild();
+                    self.rebuild(t + dt);
                 }
                 self.evaluate_forces(t + dt, AfterForces::HalfKick, record);
             }
@@ -46,8 +51,9 @@ impl World {
         self.steps += 1;
     }
 
-    /// Remove particles outside the domain, optionally re-sort, rebuild the pair list.
-    pub(super) fn rebuild(&mut self) {
+    /// Remove particles outside the domain, optionally re-sort, rebuild the pair list and the
+    /// wall candidates (positions are those of time `t`).
+    pub(super) fn rebuild(&mut self, t: f64) {
         let domain = self.config.domain;
         let p = &mut self.particles;
         let outside = p.position.iter().filter(|x| domain.is_outside(**x)).count();
@@ -59,7 +65,8 @@ impl World {
             self.removed += outside as u64;
         }
         let max_radius = p.radius.iter().copied().fold(0.0, f64::max);
-        self.skin = self.config.skin_fraction * 2.0 * max_radius;
+        self.skin = self.adaptive_skin(max_radius);
+        let p = &mut self.particles;
         let cell_size = 2.0 * max_radius + self.skin;
         let mut grid = CellGrid::build(&domain, cell_size, &p.position);
         let sort_every = self.config.sort_every_rebuilds as u64;
@@ -77,35 +84,60 @@ impl World {
         }
         p.position_at_build = p.position.iter().map(|&x| single(x)).collect();
         self.rolling_moment.resize(p.len(), 0.0);
+        self.build_wall_candidates(t);
         self.rebuilds += 1;
         self.needs_rebuild = false;
     }
 
+    /// The skin for the next pair list: wide enough that the fastest particle needs about
+    /// `rebuild_target_steps` steps to move half of it, within the configured fractions of the
+    /// largest diameter. A maximum over particles: the same for any thread count.
+    fn adaptive_skin(&self, max_radius: f64) -> f64 {
+        let c = &self.config;
+        let (lo, hi) = (
+            c.skin_fraction * 2.0 * max_radius,
+            c.skin_fraction_max * 2.0 * max_radius,
+        );
+        if c.rebuild_target_steps == 0 || hi <= lo {
+            return lo;
+        }
+        let v2 = self
+            .particles
+            .velocity
+            .iter()
+            .map(|v| v.norm_squared())
+            .fold(0.0, f64::max);
+        let wanted = 2.0 * v2.sqrt() * c.time_step * c.rebuild_target_steps as f64;
+        wanted.clamp(lo, hi)
+    }
+
     pub(super) fn place_geometries(&self, t: f64) -> Vec<PlacedGeometry> {
+        let walls = &self.walls;
+        let have_candidates = walls.build_pose.len() == self.geometries.len()
+            && walls.first.len() == self.particles.len() + 1;
         self.geometries
             .iter()
-            .map(|g| {
-                let pose = g.motion.pose_at(t);
-                let (lo, hi) = g.mesh.aabb();
-                let mut aabb_min = Vec3::repeat(f64::INFINITY);
-                let mut aabb_max = Vec3::repeat(f64::NEG_INFINITY);
-                for corner in 0..8 {
-                    let c = Vec3::new(
-                        if corner & 1 == 0 { lo.x } else { hi.x },
-                        if corner & 2 == 0 { lo.y } else { hi.y },
-                        if corner & 4 == 0 { lo.z } else { hi.z },
-                    );
-                    let w = pose.transform_point(&c.into()).coords;
-                    aabb_min = aabb_min.inf(&w);
-                    aabb_max = aabb_max.sup(&w);
-                }
+            .enumerate()
+            .map(|(g, geometry)| {
+                let pose = geometry.motion.pose_at(t);
+                let (aabb_min, aabb_max) = world_aabb(&geometry.mesh, &pose);
+                // Particles move at most skin/2 between rebuilds; the candidates hold every
+                // triangle within radius + margin, so they stay complete while the geometry
+                // has moved at most margin - skin/2.
+                let cached = have_candidates
+                    && displacement_bound(
+                        &walls.build_pose[g],
+                        &pose,
+                        geometry.mesh.max_vertex_distance(),
+                    ) <= walls.margin - 0.5 * self.skin;
                 PlacedGeometry {
                     inverse: pose.inverse(),
                     pose,
                     aabb_min,
                     aabb_max,
-                    angular_velocity: g.motion.angular_velocity_at(t),
-                    reference_point: g.motion.reference_point_at(t),
+                    angular_velocity: geometry.motion.angular_velocity_at(t),
+                    reference_point: geometry.motion.reference_point_at(t),
+                    cached,
                 }
             })
             .collect()
