@@ -73,7 +73,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
         scene.duration = d;
     }
     let prepared = scene
-        .prepare()
+        .prepare(&|path| std::fs::read(path).map_err(|e| e.to_string()))
         .with_context(|| format!("invalid scene {}", args.scene.display()))?;
     if let Some(w) = &prepared.time_step_warning {
         eprintln!(

@@ -182,7 +182,12 @@ pub struct PreparedScene {
 
 impl Scene {
     /// Validates every part of the scene and builds the world. Nothing is simulated.
-    pub fn prepare(&self) -> Result<PreparedScene, SceneError> {
+    /// `read_file` supplies the bytes of the STL files the scene names (the engine does no
+    /// file I/O; the CLI passes `std::fs::read`).
+    pub fn prepare(
+        &self,
+        read_file: &dyn Fn(&std::path::Path) -> Result<Vec<u8>, String>,
+    ) -> Result<PreparedScene, SceneError> {
         let table = self.materials.build().map_err(|e| {
             // Material errors already carry their path (materials.soil.poisson ...).
             scene_error("materials", e)
@@ -287,7 +292,7 @@ impl Scene {
             let material = material_id(format!("{path}.material"), &entry.material)?;
             let mesh = entry
                 .mesh
-                .build()
+                .build(read_file)
                 .map_err(|e| scene_error(format!("{path}.mesh"), e))?;
             if !entry.position.iter().all(|v| v.is_finite()) {
                 return Err(scene_error(format!("{path}.position"), "must be finite"));

@@ -577,25 +577,35 @@ fn binary_stl_whose_header_starts_with_solid_is_read_as_binary() {
 }
 
 #[test]
-fn stl_from_file_names_the_file() {
-    let missing = std::env::temp_dir().join("repose-geometry-test-missing.stl");
-    let e = TriMesh::from_stl_file(&missing, 1.0).unwrap_err();
-    assert!(
-        e.to_string().contains("repose-geometry-test-missing.stl"),
-        "{e}"
-    );
-
-    let path = std::env::temp_dir().join(format!("repose-geometry-{}.stl", std::process::id()));
-    std::fs::write(
-        &path,
-        b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nendloop\n",
-    )
-    .unwrap();
-    let e = TriMesh::from_stl_file(&path, 1.0).unwrap_err();
-    let _ = std::fs::remove_file(&path);
+fn an_stl_mesh_spec_asks_its_caller_for_the_bytes_and_errors_name_the_file() {
+    use repose_engine::mesh::MeshSpec;
+    let spec = |path: &str| MeshSpec::Stl {
+        path: path.into(),
+        scale: 1.0,
+    };
+    // The engine reads no file itself: the caller's reader is asked, and its refusal named.
+    let refuse = |_: &std::path::Path| -> Result<Vec<u8>, String> { Err("no such file".into()) };
+    let e = spec("parts/missing.stl").build(&refuse).unwrap_err();
     let message = e.to_string();
-    assert!(message.contains(&path.display().to_string()), "{message}");
+    assert!(message.contains("parts/missing.stl"), "{message}");
+    assert!(message.contains("no such file"), "{message}");
+
+    let truncated = |_: &std::path::Path| -> Result<Vec<u8>, String> {
+        Ok(b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nendloop\n".to_vec())
+    };
+    let message = spec("parts/broken.stl")
+        .build(&truncated)
+        .unwrap_err()
+        .to_string();
+    assert!(message.contains("parts/broken.stl"), "{message}");
     assert!(message.contains("line 5"), "{message}");
+
+    let plate = plane(1.0, 1.0, 2, 2).unwrap().to_stl_binary();
+    let read = |p: &std::path::Path| -> Result<Vec<u8>, String> {
+        assert_eq!(p, std::path::Path::new("plate.stl"));
+        Ok(plate.clone())
+    };
+    assert_eq!(spec("plate.stl").build(&read).unwrap().triangles().len(), 8);
 }
 
 #[test]
@@ -884,14 +894,17 @@ fn mesh_spec_builds_from_json() {
     let json = r#"{"kind":"funnel","wall_inclination_deg":60,"outlet_diameter":0.02,
                    "outlet_height":0.05,"top":{"diameter":0.1},"segments":64}"#;
     let spec: MeshSpec = serde_json::from_str(json).unwrap();
-    let mesh = spec.build().unwrap();
+    let no_files = |p: &std::path::Path| -> Result<Vec<u8>, String> {
+        Err(format!("{} is not here", p.display()))
+    };
+    let mesh = spec.build(&no_files).unwrap();
     assert_eq!(
         mesh.vertices(),
         funnel(&paper_funnel_spec()).unwrap().vertices()
     );
     let bin: MeshSpec =
         serde_json::from_str(r#"{"kind":"open_box","size_x":1,"size_y":1,"height":0.5}"#).unwrap();
-    assert_eq!(bin.build().unwrap().triangles().len(), 10);
+    assert_eq!(bin.build(&no_files).unwrap().triangles().len(), 10);
     let auger_json = r#"{"kind":"auger","shaft_diameter":0.02,"flight_outer_diameter":0.06,
         "pitch":0.04,"flight_length":0.2,"flight_thickness":0.003,"shaft_length":0.5}"#;
     let spec: MeshSpec = serde_json::from_str(auger_json).unwrap();
@@ -899,11 +912,11 @@ fn mesh_spec_builds_from_json() {
         panic!("not an auger: {spec:?}")
     };
     assert!(a.right_handed && a.segments_per_turn == 64 && a.tip_length == 0.0);
-    assert!(spec.build().is_ok());
+    assert!(spec.build(&no_files).is_ok());
     let missing: MeshSpec =
         serde_json::from_str(r#"{"kind":"stl","path":"/nonexistent/wall.stl","scale":0.001}"#)
             .unwrap();
-    let e = missing.build().unwrap_err();
+    let e = missing.build(&no_files).unwrap_err();
     assert!(e.to_string().contains("/nonexistent/wall.stl"), "{e}");
 }
 

@@ -27,6 +27,11 @@ const VALID: &str = r#"{
   ]
 }"#;
 
+/// The tests' file reader (the engine itself reads no files).
+fn read_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
+    std::fs::read(path).map_err(|e| e.to_string())
+}
+
 fn scene_with(edit: impl FnOnce(&mut serde_json::Value)) -> serde_json::Value {
     let mut v: serde_json::Value = serde_json::from_str(VALID).unwrap();
     edit(&mut v);
@@ -36,7 +41,7 @@ fn scene_with(edit: impl FnOnce(&mut serde_json::Value)) -> serde_json::Value {
 fn error_of(v: serde_json::Value) -> String {
     match serde_json::from_value::<Scene>(v) {
         Err(e) => e.to_string(),
-        Ok(scene) => match scene.prepare() {
+        Ok(scene) => match scene.prepare(&read_file) {
             Err(e) => e.to_string(),
             Ok(_) => panic!("scene should be rejected"),
         },
@@ -46,7 +51,7 @@ fn error_of(v: serde_json::Value) -> String {
 #[test]
 fn valid_scene_builds_and_runs() {
     let scene: Scene = serde_json::from_str(VALID).unwrap();
-    let mut prepared = scene.prepare().expect("valid scene");
+    let mut prepared = scene.prepare(&read_file).expect("valid scene");
     assert_eq!(prepared.geometry_names, vec!["plate"]);
     // Default time step: 20 % of the Rayleigh time of a 1 mm soil grain.
     let g = 3.67e6 / (2.0 * 1.36);

@@ -10,7 +10,7 @@ use std::f64::consts::TAU;
 
 use serde::{Deserialize, Serialize};
 
-use super::{MeshError, TriMesh};
+use super::{MeshError, StlError, TriMesh};
 use crate::math::Vec3;
 
 fn default_segments() -> usize {
@@ -499,8 +499,8 @@ pub enum MeshSpec {
     },
     Funnel(FunnelSpec),
     Auger(AugerSpec),
-    /// An STL file (the only variant that reads a file); `scale` converts its units to metres
-    /// (0.001 for millimetres).
+    /// An STL file; `scale` converts its units to metres (0.001 for millimetres). The engine
+    /// does no file I/O: [`MeshSpec::build`] asks its caller for the file's bytes.
     Stl {
         path: std::path::PathBuf,
         #[serde(default = "default_scale")]
@@ -509,8 +509,13 @@ pub enum MeshSpec {
 }
 
 impl MeshSpec {
-    /// Generates the mesh (in its documented body frame).
-    pub fn build(&self) -> Result<TriMesh, MeshError> {
+    /// Generates the mesh (in its documented body frame). `read_file` supplies the bytes of an
+    /// STL path (the caller's file system, an archive, a test's memory): the engine itself
+    /// reads no files.
+    pub fn build(
+        &self,
+        read_file: &dyn Fn(&std::path::Path) -> Result<Vec<u8>, String>,
+    ) -> Result<TriMesh, MeshError> {
         match self {
             MeshSpec::Plane {
                 size_x,
@@ -536,7 +541,16 @@ impl MeshSpec {
             } => cylinder(*radius, *height, *segments, *bottom),
             MeshSpec::Funnel(spec) => funnel(spec),
             MeshSpec::Auger(spec) => auger(spec),
-            MeshSpec::Stl { path, scale } => TriMesh::from_stl_file(path, *scale),
+            MeshSpec::Stl { path, scale } => {
+                let name = path.display().to_string();
+                let bytes = read_file(path).map_err(|reason| {
+                    MeshError::Stl(StlError {
+                        source_name: name.clone(),
+                        reason: format!("cannot read file: {reason}"),
+                    })
+                })?;
+                TriMesh::from_stl_bytes_named(&bytes, *scale, &name)
+            }
         }
     }
 }

@@ -1,13 +1,11 @@
 //! STL import (ASCII and binary) and export (binary and ASCII).
 //!
-//! The library stays I/O-free: callers hand over the bytes. [`TriMesh::from_stl_file`] is the
-//! one convenience that touches the file system, so that its errors can name the file.
+//! The library stays I/O-free: callers hand over the bytes (and, with
+//! [`TriMesh::from_stl_bytes_named`], the name errors should carry: the file's path).
 //!
 //! STL stores every triangle with its own three corners, so shared corners are repeated; they
 //! are welded on import, otherwise the mesh would have no edge adjacency and contact
 //! de-duplication across triangle edges would not work.
-
-use std::path::Path;
 
 use super::{weld_vertices, MeshError, TriMesh, RELATIVE_TOLERANCE};
 use crate::math::Vec3;
@@ -63,17 +61,6 @@ impl TriMesh {
             MeshError::InvalidParameter { .. } => e,
             other => MeshError::Stl(fail(other.to_string())),
         })
-    }
-
-    /// Reads and parses an STL file (see [`TriMesh::from_stl_bytes`]); errors name the file.
-    pub fn from_stl_file(path: impl AsRef<Path>, scale: f64) -> Result<TriMesh, MeshError> {
-        let path = path.as_ref();
-        let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| StlError {
-            source_name: name.clone(),
-            reason: format!("cannot read file: {e}"),
-        })?;
-        Self::from_stl_bytes_named(&bytes, scale, &name)
     }
 
     /// Binary STL of this mesh (coordinates as `f32`, in metres, normals from the mesh).
