@@ -65,11 +65,22 @@ fn angle_rises_with_soil_soil_rolling_friction() {
     assert!(high > low + 3.0, "{low} -> {high}");
 }
 
+/// The effect of static friction over the paper's range (≈ 2-3°) is smaller than the
+/// seed-to-seed spread of one 12 g heap at the fast resolution (18.6-26.3° at μs 0.44 over
+/// seeds 1-4), so one seed per level can rank them either way: the claim is about the mean
+/// over three seeds.
 #[test]
 fn angle_rises_with_soil_soil_static_friction() {
-    let low = angle_with(&[("soil_soil.static_friction", "0.44")]);
-    let high = angle_with(&[("soil_soil.static_friction", "0.68")]);
-    eprintln!("static friction 0.44 -> {low:.2}°, 0.68 -> {high:.2}°");
+    let mean = |mu: &str| {
+        let angles: Vec<f64> = ["1", "2", "3"]
+            .iter()
+            .map(|seed| angle_with(&[("soil_soil.static_friction", mu), ("seed", seed)]))
+            .collect();
+        eprintln!("static friction {mu}: {angles:.2?}");
+        angles.iter().sum::<f64>() / angles.len() as f64
+    };
+    let (low, high) = (mean("0.44"), mean("0.68"));
+    eprintln!("static friction 0.44 -> {low:.2}°, 0.68 -> {high:.2}° (means of 3 seeds)");
     assert!(high > low + 0.5, "{low} -> {high}");
 }
 
