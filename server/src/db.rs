@@ -18,11 +18,12 @@ use repose_api::{
 };
 use repose_doe::design::{DesignKind, Factor};
 use serde_json::Value;
+use sqlx::pool::PoolConnection;
 use sqlx::sqlite::{
     SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow,
     SqliteSynchronous,
 };
-use sqlx::{Row, Sqlite, Transaction};
+use sqlx::{Row, Sqlite, SqliteConnection};
 use uuid::Uuid;
 
 use crate::auth::TokenRole;
@@ -64,7 +65,162 @@ pub struct Db {
     /// Earliest time (Unix ms) the next claim looks for expired leases.
     next_expiry_check_ms: Arc<AtomicI64>,
     /// Registered workers and when a claim last wrote their `last_seen_at` (Unix ms).
-    seen_workers: Arc<Mutex<HashMap<Uuid, i64>>>,
+    seen_workers: Arc<Mutex<HashMap<Uuid, (String, i64)>>>,
+    /// Whether writes currently fail, for the health check.
+    writer_health: Arc<WriterHealth>,
+}
+
+/// Storage settings of [`Db::open_with`].
+#[derive(Debug, Clone, Default)]
+pub struct OpenOptions {
+    /// `synchronous=FULL` instead of `NORMAL`: a result acknowledged is on disk even after a
+    /// power loss, at the cost of an fsync per write transaction.
+    pub durability_full: bool,
+    /// SQLite's `max_page_count` on the writer: writes beyond this many pages fail with
+    /// "database or disk is full" (a size cap; the fault-injection tests fill the disk with it).
+    pub max_pages: Option<u64>,
+}
+
+/// The most recent write failure, cleared by the next successful write transaction.
+#[derive(Debug, Default)]
+struct WriterHealth {
+    last_failure: Mutex<Option<String>>,
+}
+
+impl WriterHealth {
+    fn record_failure(&self, err: &sqlx::Error) {
+        if let Ok(mut last) = self.last_failure.lock() {
+            *last = Some(err.to_string());
+        }
+    }
+
+    fn record_success(&self) {
+        if let Ok(mut last) = self.last_failure.lock() {
+            *last = None;
+        }
+    }
+
+    fn failing(&self) -> Option<String> {
+        self.last_failure.lock().ok().and_then(|last| last.clone())
+    }
+}
+
+/// A write transaction on the writer connection; end it with [`WriteTx::finish`].
+///
+/// Architecture Invariant: a writer connection that saw an error is never used again. SQLite
+/// may roll a transaction back by itself when a statement or COMMIT fails with SQLITE_FULL or
+/// SQLITE_IOERR; a connection reused after that can run later statements outside the
+/// transaction its user thinks it is in, and acknowledge writes that never commit. So any
+/// database error, a failed COMMIT or ROLLBACK, and a transaction dropped unfinished (a client
+/// that went away mid-request) close the connection, and the pool opens a fresh one. Only a
+/// refusal decided by the server's own logic (409, 404, …) rolls back and keeps it.
+struct WriteTx {
+    conn: PoolConnection<Sqlite>,
+    health: Arc<WriterHealth>,
+    finished: bool,
+}
+
+impl std::fmt::Debug for WriteTx {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WriteTx")
+            .field("finished", &self.finished)
+            .finish()
+    }
+}
+
+impl std::ops::Deref for WriteTx {
+    type Target = SqliteConnection;
+    fn deref(&self) -> &SqliteConnection {
+        &self.conn
+    }
+}
+
+impl std::ops::DerefMut for WriteTx {
+    fn deref_mut(&mut self) -> &mut SqliteConnection {
+        &mut self.conn
+    }
+}
+
+impl WriteTx {
+    /// Commits on `Ok`; rolls back on a refusal; discards the connection on any database
+    /// error (including a failed COMMIT). Returns `result`, or the COMMIT's error.
+    async fn finish<T>(mut self, result: Result<T, AppError>) -> Result<T, AppError> {
+        match result {
+            Ok(value) => match sqlx::query("COMMIT").execute(&mut *self.conn).await {
+                Ok(_) => {
+                    self.finished = true;
+                    self.health.record_success();
+                    Ok(value)
+                }
+                Err(err) => {
+                    self.health.record_failure(&err);
+                    Err(err.into())
+                }
+            },
+            Err(AppError::Database(err)) => {
+                self.health.record_failure(&err);
+                Err(AppError::Database(err))
+            }
+            Err(err) if err.is_server_fault() => Err(err),
+            Err(refusal) => {
+                if sqlx::query("ROLLBACK")
+                    .execute(&mut *self.conn)
+                    .await
+                    .is_ok()
+                {
+                    self.finished = true;
+                }
+                Err(refusal)
+            }
+        }
+    }
+
+    /// [`WriteTx::finish`] for the health probe: a successful probe does not clear the
+    /// failure of a real write (the probe's in-place update may fit where an insert did not).
+    async fn finish_probe(mut self, result: Result<(), AppError>) -> Result<(), AppError> {
+        if let Err(err) = result {
+            if let AppError::Database(db) = &err {
+                self.health.record_failure(db);
+            }
+            return Err(err);
+        }
+        match sqlx::query("COMMIT").execute(&mut *self.conn).await {
+            Ok(_) => {
+                self.finished = true;
+                Ok(())
+            }
+            Err(err) => {
+                self.health.record_failure(&err);
+                Err(err.into())
+            }
+        }
+    }
+}
+
+impl Drop for WriteTx {
+    fn drop(&mut self) {
+        if !self.finished {
+            // Closing a connection rolls back whatever it had open.
+            self.conn.close_on_drop();
+        }
+    }
+}
+
+/// Creates the database file readable and writable by its owner only (0600) if it does not
+/// exist; SQLite gives its `-wal` and `-shm` files the same permissions.
+fn create_private(path: &Path) -> std::io::Result<()> {
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.mode(0o600);
+    }
+    match options.open(path) {
+        Ok(_) => Ok(()),
+        Err(err) if err.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(err) => Err(err),
+    }
 }
 
 /// What the analysis needs to know about a batch.
@@ -123,20 +279,37 @@ struct LeaseLookup {
     batch_id: String,
     has_result: bool,
     response: String,
+    /// The batch is still active (not completed or cancelled).
+    batch_active: bool,
 }
 
 impl Db {
     /// Opens or creates the database at `path` and applies the migrations.
     pub async fn open(path: &Path) -> Result<Self, crate::ServeError> {
-        let options = SqliteConnectOptions::new()
+        Self::open_with(path, &OpenOptions::default()).await
+    }
+
+    /// [`Db::open`] with the server's storage settings.
+    pub async fn open_with(path: &Path, settings: &OpenOptions) -> Result<Self, crate::ServeError> {
+        create_private(path)?;
+        let mut options = SqliteConnectOptions::new()
             .filename(path)
             .create_if_missing(true)
             .journal_mode(SqliteJournalMode::Wal)
-            .synchronous(SqliteSynchronous::Normal)
+            .synchronous(if settings.durability_full {
+                SqliteSynchronous::Full
+            } else {
+                SqliteSynchronous::Normal
+            })
             .busy_timeout(BUSY_TIMEOUT)
             .foreign_keys(true);
+        if let Some(pages) = settings.max_pages {
+            options = options.pragma("max_page_count", pages.to_string());
+        }
         let writer = SqlitePoolOptions::new()
             .max_connections(1)
+            // A writer connection that failed is closed, never reused (see `WriteTx`).
+            .test_before_acquire(false)
             .connect_with(options.clone())
             .await?;
         sqlx::migrate!("../migrations").run(&writer).await?;
@@ -147,6 +320,7 @@ impl Db {
         Ok(Db {
             writer,
             reader,
+            writer_health: Arc::default(),
             next_expiry_check_ms: Arc::new(AtomicI64::new(0)),
             seen_workers: Arc::default(),
         })
@@ -158,10 +332,50 @@ impl Db {
         self.writer.close().await;
     }
 
-    /// A trivial query, for the health check.
+    /// The health check: a read, and a committed write through the writer connection; fails
+    /// while the last write transaction failed for a storage reason (disk full, I/O error)
+    /// and none has succeeded since, so a full disk shows as unhealthy even when the probe's
+    /// tiny in-place write still fits.
     pub async fn ping(&self) -> Result<(), AppError> {
         sqlx::query("SELECT 1").execute(&self.reader).await?;
-        Ok(())
+        let mut tx = self.begin_write().await?;
+        let result = async {
+            sqlx::query("UPDATE health SET probed_at = ? WHERE id = 1")
+                .bind(now_ms())
+                .execute(&mut *tx)
+                .await?;
+            Ok(())
+        }
+        .await;
+        tx.finish_probe(result).await?;
+        match self.writer_health.failing() {
+            Some(error) => Err(AppError::Unavailable(format!(
+                "the database cannot store writes: {error}"
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    /// Starts a write transaction on the single writer connection (`BEGIN IMMEDIATE`, so the
+    /// write lock is taken up front and never upgraded).
+    async fn begin_write(&self) -> Result<WriteTx, AppError> {
+        let mut conn = match self.writer.acquire().await {
+            Ok(conn) => conn,
+            Err(err) => {
+                self.writer_health.record_failure(&err);
+                return Err(err.into());
+            }
+        };
+        if let Err(err) = sqlx::query("BEGIN IMMEDIATE").execute(&mut *conn).await {
+            conn.close_on_drop();
+            self.writer_health.record_failure(&err);
+            return Err(err.into());
+        }
+        Ok(WriteTx {
+            conn,
+            health: Arc::clone(&self.writer_health),
+            finished: false,
+        })
     }
 
     // -----------------------------------------------------------------------------------------
@@ -170,10 +384,13 @@ impl Db {
 
     /// Stores a validated batch with one run and one queued job per planned run.
     pub async fn insert_batch(&self, plan: &PlannedBatch, owner: &str) -> Result<Uuid, AppError> {
-        let mut tx = self.writer.begin().await?;
-        let batch_id = insert_batch_tx(&mut tx, plan, owner).await?;
-        tx.commit().await?;
-        Ok(batch_id)
+        let mut tx = self.begin_write().await?;
+        let result: Result<Uuid, AppError> = async {
+            let batch_id = insert_batch_tx(&mut tx, plan, owner).await?;
+            Ok(batch_id)
+        }
+        .await;
+        tx.finish(result).await
     }
 
     /// The most recent batches, newest first.
@@ -314,74 +531,55 @@ impl Db {
         batch_id: Uuid,
         caller: &str,
     ) -> Result<Option<BatchState>, AppError> {
-        let now = now_ms();
-        let id = batch_id.to_string();
-        let mut tx = self.writer.begin().await?;
-        let Some(row) = sqlx::query("SELECT state, owner FROM batches WHERE id = ?")
-            .bind(&id)
-            .fetch_optional(&mut *tx)
-            .await?
-        else {
-            return Ok(None);
-        };
-        let owner: Option<String> = row.try_get("owner")?;
-        if let Some(owner) = owner.filter(|owner| owner != caller) {
-            return Err(AppError::Forbidden(format!(
-                "batch {batch_id} belongs to `{owner}`; only its owner may cancel it"
-            )));
-        }
-        let state = batch_state_from_db(row.try_get("state")?)?;
-        if state != BatchState::Active {
-            return Ok(Some(state));
-        }
-        sqlx::query(
-            "UPDATE leases SET outcome = 'cancelled', ended_at = ?
-             WHERE token IN (SELECT lease_token FROM jobs WHERE batch_id = ? AND state = 'leased')",
-        )
-        .bind(now)
-        .bind(&id)
-        .execute(&mut *tx)
-        .await?;
-        sqlx::query(
-            "UPDATE jobs SET state = 'cancelled', lease_token = NULL, lease_expires_at = NULL,
-                             updated_at = ?
-             WHERE batch_id = ? AND state IN ('queued', 'leased')",
-        )
-        .bind(now)
-        .bind(&id)
-        .execute(&mut *tx)
-        .await?;
-        sqlx::query("UPDATE batches SET state = 'cancelled', finished_at = ? WHERE id = ?")
-            .bind(now)
-            .bind(&id)
-            .execute(&mut *tx)
-            .await?;
-        tx.commit().await?;
-        Ok(Some(BatchState::Cancelled))
+        let mut tx = self.begin_write().await?;
+        let result = cancel_batch_in(&mut tx, batch_id, caller).await;
+        tx.finish(result).await
     }
 
     // -----------------------------------------------------------------------------------------
     // Workers and jobs
     // -----------------------------------------------------------------------------------------
 
-    /// Records (or refreshes) a worker.
-    pub async fn register_worker(&self, worker: &WorkerRegistration) -> Result<(), AppError> {
+    /// Records (or refreshes) a worker on behalf of the worker token `token`. A worker id
+    /// registered by another token is [`AppError::Forbidden`]: worker rows belong to the token
+    /// that made them.
+    pub async fn register_worker(
+        &self,
+        worker: &WorkerRegistration,
+        token: &str,
+    ) -> Result<(), AppError> {
         let now = now_ms();
-        sqlx::query(
-            "INSERT INTO workers (id, host, threads, version, registered_at, last_seen_at)
-             VALUES (?, ?, ?, ?, ?, ?)
-             ON CONFLICT (id) DO UPDATE SET host = excluded.host, threads = excluded.threads,
-                 version = excluded.version, last_seen_at = excluded.last_seen_at",
-        )
-        .bind(worker.instance_id.to_string())
-        .bind(&worker.host)
-        .bind(i64::from(worker.threads))
-        .bind(&worker.version)
-        .bind(now)
-        .bind(now)
-        .execute(&self.writer)
-        .await?;
-        Ok(())
+        let mut tx = self.begin_write().await?;
+        let result = async {
+            let changed = sqlx::query(
+                "INSERT INTO workers (id, host, threads, version, registered_at, last_seen_at,
+                                      token)
+                 VALUES (?, ?, ?, ?, ?, ?, ?)
+                 ON CONFLICT (id) DO UPDATE SET host = excluded.host,
+                     threads = excluded.threads, version = excluded.version,
+                     last_seen_at = excluded.last_seen_at, token = excluded.token
+                 WHERE workers.token IS NULL OR workers.token = excluded.token",
+            )
+            .bind(worker.instance_id.to_string())
+            .bind(&worker.host)
+            .bind(i64::from(worker.threads))
+            .bind(&worker.version)
+            .bind(now)
+            .bind(now)
+            .bind(token)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if changed == 0 {
+                return Err(AppError::Forbidden(format!(
+                    "worker {} was registered by another token",
+                    worker.instance_id
+                )));
+            }
+            Ok(())
+        }
+        .await;
+        tx.finish(result).await
     }
 
     /// Leases the oldest available job to `worker_id`, first returning expired leases to the
@@ -390,111 +588,128 @@ impl Db {
     pub async fn claim(
         &self,
         worker_id: Uuid,
+        caller: &str,
         lease: Duration,
         max_attempts: u32,
     ) -> Result<(Option<ClaimResponse>, Vec<Uuid>), AppError> {
         let now = now_ms();
-        let mut tx = self.writer.begin().await?;
-        let seen_recently = self
-            .seen_workers
-            .lock()
-            .map(|seen| {
-                seen.get(&worker_id)
-                    .is_some_and(|&at| now - at < LAST_SEEN_RESOLUTION_MS)
-            })
-            .unwrap_or(false);
-        if !seen_recently {
-            let worker_known = sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
-                .bind(now)
-                .bind(worker_id.to_string())
-                .execute(&mut *tx)
-                .await?
-                .rows_affected()
-                == 1;
-            if !worker_known {
-                return Err(AppError::invalid(
-                    "worker_id",
-                    format!(
-                        "worker {worker_id} is not registered; POST /v1/workers/register first"
-                    ),
-                ));
+        let mut tx = self.begin_write().await?;
+        let result: Result<(Option<ClaimResponse>, Vec<Uuid>), AppError> = async {
+            let seen_recently = self
+                .seen_workers
+                .lock()
+                .map(|seen| {
+                    seen.get(&worker_id).is_some_and(|(token, at)| {
+                        token == caller && now - at < LAST_SEEN_RESOLUTION_MS
+                    })
+                })
+                .unwrap_or(false);
+            if !seen_recently {
+                let worker_known =
+                    sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ? AND token = ?")
+                        .bind(now)
+                        .bind(worker_id.to_string())
+                        .bind(caller)
+                        .execute(&mut *tx)
+                        .await?
+                        .rows_affected()
+                        == 1;
+                if !worker_known {
+                    return Err(AppError::invalid(
+                        "worker_id",
+                        format!(
+                            "worker {worker_id} is not registered with this token; \
+                             POST /v1/workers/register first"
+                        ),
+                    ));
+                }
+                if let Ok(mut seen) = self.seen_workers.lock() {
+                    seen.insert(worker_id, (caller.to_owned(), now));
+                }
             }
-            if let Ok(mut seen) = self.seen_workers.lock() {
-                seen.insert(worker_id, now);
-            }
-        }
-        let next_check = self.next_expiry_check_ms.load(Ordering::Relaxed);
-        let finished = if now >= next_check
-            && self
-                .next_expiry_check_ms
-                .compare_exchange(
-                    next_check,
-                    now + EXPIRY_CHECK_INTERVAL_MS,
-                    Ordering::Relaxed,
-                    Ordering::Relaxed,
-                )
-                .is_ok()
-        {
-            expire_leases(&mut tx, now, max_attempts).await?
-        } else {
-            Vec::new()
-        };
+            let next_check = self.next_expiry_check_ms.load(Ordering::Relaxed);
+            let finished = if now >= next_check
+                && self
+                    .next_expiry_check_ms
+                    .compare_exchange(
+                        next_check,
+                        now + EXPIRY_CHECK_INTERVAL_MS,
+                        Ordering::Relaxed,
+                        Ordering::Relaxed,
+                    )
+                    .is_ok()
+            {
+                expire_leases(&mut tx, now, max_attempts).await?
+            } else {
+                Vec::new()
+            };
 
-        let token = Uuid::new_v4();
-        let expires_at = now + duration_ms(lease);
-        // One round trip: record the lease for the oldest available job, then lease that job
-        // (found through its new lease) and return what the worker needs. Plain `?`
-        // placeholders, bound in order across both statements.
-        let claimed = sqlx::query(
-            "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
-             SELECT ?, id, ?, attempts + 1, ? FROM jobs
-             WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND available_at <= ?
-                         ORDER BY available_at, rowid LIMIT 1);
-             UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
-                             lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
-             WHERE id = (SELECT job_id FROM leases WHERE token = ?)
-             RETURNING id, run_id, batch_id, attempts,
-                       (SELECT spec FROM runs WHERE runs.id = jobs.run_id) AS spec,
-                       (SELECT seed FROM runs WHERE runs.id = jobs.run_id) AS seed,
-                       (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind,
-                       (SELECT keep_pictures FROM batches WHERE batches.id = jobs.batch_id)
-                           AS keep_pictures",
-        )
-        .bind(token.to_string())
-        .bind(worker_id.to_string())
-        .bind(now)
-        .bind(now)
-        .bind(token.to_string())
-        .bind(expires_at)
-        .bind(worker_id.to_string())
-        .bind(now)
-        .bind(token.to_string())
-        .fetch_optional(&mut *tx)
-        .await?;
-        let Some(claimed) = claimed else {
-            tx.commit().await?;
-            return Ok((None, finished));
-        };
-        let job_id: String = claimed.try_get("id")?;
-        let run_id: String = claimed.try_get("run_id")?;
-        let attempt: i64 = claimed.try_get("attempts")?;
-        tx.commit().await?;
-        let spec: Value = serde_json::from_str(claimed.try_get("spec")?)?;
-        Ok((
-            Some(ClaimResponse {
-                job_id: parse_uuid(&job_id)?,
-                lease_token: token,
-                lease_expires_in_s: lease.as_secs_f64(),
-                run_id: parse_uuid(&run_id)?,
-                batch_id: parse_uuid(claimed.try_get("batch_id")?)?,
-                kind: claimed.try_get("kind")?,
-                spec,
-                seed: claimed.try_get::<i64, _>("seed")? as u64,
-                attempt: attempt as u32,
-                keep_pictures: claimed.try_get("keep_pictures")?,
-            }),
-            finished,
-        ))
+            let token = Uuid::new_v4();
+            let expires_at = now + duration_ms(lease);
+            // One round trip: record the lease for the oldest available job, then lease that job
+            // (found through its new lease) and return what the worker needs. Plain `?`
+            // placeholders, bound in order across both statements.
+            let claimed = sqlx::query(
+                "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
+                 SELECT ?, id, ?, attempts + 1, ? FROM jobs
+                 WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND available_at <= ?
+                             ORDER BY available_at, rowid LIMIT 1);
+                 UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
+                                 lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
+                 WHERE id = (SELECT job_id FROM leases WHERE token = ?)
+                 RETURNING id, run_id, batch_id, attempts,
+                           (SELECT spec FROM runs WHERE runs.id = jobs.run_id) AS spec,
+                           (SELECT seed FROM runs WHERE runs.id = jobs.run_id) AS seed,
+                           (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind,
+                           (SELECT keep_pictures FROM batches WHERE batches.id = jobs.batch_id)
+                               AS keep_pictures",
+            )
+            .bind(token.to_string())
+            .bind(worker_id.to_string())
+            .bind(now)
+            .bind(now)
+            .bind(token.to_string())
+            .bind(expires_at)
+            .bind(worker_id.to_string())
+            .bind(now)
+            .bind(token.to_string())
+            .fetch_optional(&mut *tx)
+            .await?;
+            let Some(claimed) = claimed else {
+                return Ok((None, finished));
+            };
+            let job_id: String = claimed.try_get("id")?;
+            let run_id: String = claimed.try_get("run_id")?;
+            let attempt: i64 = claimed.try_get("attempts")?;
+            let spec: Value = serde_json::from_str(claimed.try_get("spec")?)?;
+            Ok((
+                Some(ClaimResponse {
+                    job_id: parse_uuid(&job_id)?,
+                    lease_token: token,
+                    lease_expires_in_s: lease.as_secs_f64(),
+                    run_id: parse_uuid(&run_id)?,
+                    batch_id: parse_uuid(claimed.try_get("batch_id")?)?,
+                    kind: claimed.try_get("kind")?,
+                    spec,
+                    seed: claimed.try_get::<i64, _>("seed")? as u64,
+                    attempt: attempt as u32,
+                    keep_pictures: claimed.try_get("keep_pictures")?,
+                }),
+                finished,
+            ))
+        }
+        .await;
+        tx.finish(result).await
+    }
+
+    /// Returns expired leases to the queue (or marks their jobs dead after `max_attempts`);
+    /// the server calls this on a timer so an expired job does not wait for a claim. Returns
+    /// the batches this finished.
+    pub async fn reclaim_expired(&self, max_attempts: u32) -> Result<Vec<Uuid>, AppError> {
+        let now = now_ms();
+        let mut tx = self.begin_write().await?;
+        let result = expire_leases(&mut tx, now, max_attempts).await;
+        tx.finish(result).await
     }
 
     /// Renews a current lease and records progress. A lease that ended because the batch was
@@ -507,37 +722,9 @@ impl Db {
         progress: f64,
         lease: Duration,
     ) -> Result<HeartbeatOutcome, AppError> {
-        let now = now_ms();
-        let mut tx = self.writer.begin().await?;
-        let found = lookup_lease(&mut tx, job_id, token).await?;
-        if found.is_current(token) {
-            sqlx::query(
-                "UPDATE jobs SET lease_expires_at = ?, progress = ?, updated_at = ? WHERE id = ?",
-            )
-            .bind(now + duration_ms(lease))
-            .bind(progress.clamp(0.0, 1.0))
-            .bind(now)
-            .bind(job_id.to_string())
-            .execute(&mut *tx)
-            .await?;
-            sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
-                .bind(now)
-                .bind(&found.worker_id)
-                .execute(&mut *tx)
-                .await?;
-            tx.commit().await?;
-            return Ok(HeartbeatOutcome {
-                cancel: false,
-                lease_expires_in_s: lease.as_secs_f64(),
-            });
-        }
-        match found.outcome.as_deref() {
-            Some("cancelled" | "superseded") => Ok(HeartbeatOutcome {
-                cancel: true,
-                lease_expires_in_s: 0.0,
-            }),
-            _ => Err(found.stale_conflict()),
-        }
+        let mut tx = self.begin_write().await?;
+        let result = heartbeat_in(&mut tx, job_id, token, progress, lease).await;
+        tx.finish(result).await
     }
 
     /// Stores a result. Accepted from the current lease, and from an *expired* earlier lease
@@ -549,100 +736,9 @@ impl Db {
         token: Uuid,
         completion: &Completion,
     ) -> Result<JobUpdate, AppError> {
-        let now = now_ms();
-        let mut tx = self.writer.begin().await?;
-        let found = lookup_lease(&mut tx, job_id, token).await?;
-        let current = found.is_current(token);
-        let late = found.outcome.as_deref() == Some("expired")
-            && !found.has_result
-            && matches!(found.job_state.as_str(), "queued" | "leased" | "dead");
-        if !(current || late) {
-            return Err(found.stale_conflict());
-        }
-        match completion.metrics.get(&found.response) {
-            Some(value) if value.is_finite() => {}
-            _ => {
-                return Err(AppError::invalid(
-                    format!("metrics.{}", found.response),
-                    format!(
-                        "the batch's response metric `{}` is missing or not finite",
-                        found.response
-                    ),
-                ))
-            }
-        }
-        if !(completion.wall_time_s.is_finite() && completion.wall_time_s >= 0.0) {
-            return Err(AppError::invalid(
-                "wall_time_s",
-                "must be a non-negative number",
-            ));
-        }
-        let stored = sqlx::query(
-            "UPDATE runs SET metrics = ?, details = ?, wall_time_s = ?, worker_id = ?,
-                             completed_at = ?, engine_version = ?,
-                             pictures = CASE WHEN (SELECT keep_pictures FROM batches
-                                                   WHERE batches.id = runs.batch_id)
-                                             THEN ? END
-             WHERE id = ? AND metrics IS NULL",
-        )
-        .bind(serde_json::to_string(&completion.metrics)?)
-        .bind(serde_json::to_string(&completion.details)?)
-        .bind(completion.wall_time_s)
-        .bind(&found.worker_id)
-        .bind(now)
-        .bind(&completion.engine_version)
-        .bind(if completion.pictures.is_empty() {
-            None
-        } else {
-            Some(serde_json::to_string(&completion.pictures)?)
-        })
-        .bind(&found.run_id)
-        .execute(&mut *tx)
-        .await?
-        .rows_affected();
-        if stored != 1 {
-            return Err(AppError::Conflict("the run already has a result".into()));
-        }
-        // The rest of the bookkeeping in one round trip to SQLite (the statements run in
-        // order inside this transaction; the last one reports whether the batch finished).
-        // Someone else holding the job now (a late result of an expired lease won): their
-        // lease is superseded, their work moot.
-        let superseded = match (current, &found.current_token) {
-            (false, Some(other)) => Some(other.clone()),
-            _ => None,
-        };
-        let batch_finished: i64 = sqlx::query_scalar(
-            "UPDATE leases SET outcome = 'completed', ended_at = ? WHERE token = ?;
-             UPDATE leases SET outcome = 'superseded', ended_at = ? WHERE token = ?;
-             UPDATE jobs SET state = 'completed', lease_token = NULL, lease_expires_at = NULL,
-                             progress = 1, updated_at = ?
-             WHERE id = ?;
-             UPDATE batches SET state = 'completed', finished_at = ?
-             WHERE id = ? AND state = 'active'
-               AND NOT EXISTS (SELECT 1 FROM jobs
-                               WHERE batch_id = ? AND state IN ('queued', 'leased'));
-             SELECT changes();",
-        )
-        // Plain `?` placeholders, bound in order across the statements.
-        .bind(now)
-        .bind(token.to_string())
-        .bind(now)
-        .bind(superseded)
-        .bind(now)
-        .bind(job_id.to_string())
-        .bind(now)
-        .bind(&found.batch_id)
-        .bind(&found.batch_id)
-        .fetch_one(&mut *tx)
-        .await?;
-        let batch_finished = batch_finished == 1;
-        tx.commit().await?;
-        Ok(JobUpdate {
-            batch_id: parse_uuid(&found.batch_id)?,
-            status: RunState::Completed,
-            batch_finished,
-            requeued: false,
-        })
+        let mut tx = self.begin_write().await?;
+        let result = complete_in(&mut tx, job_id, token, completion).await;
+        tx.finish(result).await
     }
 
     /// Records a failed attempt: the job is retried after `backoff × 2^(attempt-1)`, or marked
@@ -655,77 +751,16 @@ impl Db {
         max_attempts: u32,
         backoff: Duration,
     ) -> Result<JobUpdate, AppError> {
-        let now = now_ms();
-        let mut tx = self.writer.begin().await?;
-        let found = lookup_lease(&mut tx, job_id, token).await?;
-        if !found.is_current(token) {
-            return Err(found.stale_conflict());
-        }
-        let dead = found.attempts >= i64::from(max_attempts);
-        let exponent = u32::try_from(found.attempts.saturating_sub(1).clamp(0, 20)).unwrap_or(20);
-        let retry_at = now.saturating_add(duration_ms(backoff).saturating_mul(1 << exponent));
-        sqlx::query("UPDATE leases SET outcome = 'failed', ended_at = ? WHERE token = ?")
-            .bind(now)
-            .bind(token.to_string())
-            .execute(&mut *tx)
-            .await?;
-        sqlx::query(
-            "UPDATE jobs SET state = ?, lease_token = NULL, lease_expires_at = NULL,
-                             available_at = ?, last_error = ?, updated_at = ?
-             WHERE id = ?",
-        )
-        .bind(if dead { "dead" } else { "queued" })
-        .bind(retry_at)
-        .bind(error)
-        .bind(now)
-        .bind(job_id.to_string())
-        .execute(&mut *tx)
-        .await?;
-        let batch_finished = dead && finish_batch_if_done(&mut tx, &found.batch_id, now).await?;
-        tx.commit().await?;
-        Ok(JobUpdate {
-            batch_id: parse_uuid(&found.batch_id)?,
-            status: if dead {
-                RunState::Dead
-            } else {
-                RunState::Queued
-            },
-            batch_finished,
-            requeued: !dead,
-        })
+        let mut tx = self.begin_write().await?;
+        let result = fail_in(&mut tx, job_id, token, error, max_attempts, backoff).await;
+        tx.finish(result).await
     }
 
     /// Gives a job back to the queue at once without counting the attempt.
     pub async fn release(&self, job_id: Uuid, token: Uuid) -> Result<JobUpdate, AppError> {
-        let now = now_ms();
-        let mut tx = self.writer.begin().await?;
-        let found = lookup_lease(&mut tx, job_id, token).await?;
-        if !found.is_current(token) {
-            return Err(found.stale_conflict());
-        }
-        sqlx::query("UPDATE leases SET outcome = 'released', ended_at = ? WHERE token = ?")
-            .bind(now)
-            .bind(token.to_string())
-            .execute(&mut *tx)
-            .await?;
-        sqlx::query(
-            "UPDATE jobs SET state = 'queued', attempts = MAX(attempts - 1, 0), lease_token = NULL,
-                             lease_expires_at = NULL, worker_id = NULL, available_at = ?,
-                             updated_at = ?
-             WHERE id = ?",
-        )
-        .bind(now)
-        .bind(now)
-        .bind(job_id.to_string())
-        .execute(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        Ok(JobUpdate {
-            batch_id: parse_uuid(&found.batch_id)?,
-            status: RunState::Queued,
-            batch_finished: false,
-            requeued: true,
-        })
+        let mut tx = self.begin_write().await?;
+        let result = release_in(&mut tx, job_id, token).await;
+        tx.finish(result).await
     }
 
     /// Registered workers, most recently seen first, with the number of leases each holds.
@@ -954,22 +989,26 @@ impl Db {
     /// Stores an analysis unless one exists, and returns the stored one: whoever computed
     /// first wins, so every reader sees the same result.
     pub async fn store_analysis(&self, analysis: &AnalysisView) -> Result<AnalysisView, AppError> {
-        let mut tx = self.writer.begin().await?;
-        sqlx::query(
-            "INSERT INTO analyses (batch_id, computed_at, result) VALUES (?, ?, ?)
-             ON CONFLICT (batch_id) DO NOTHING",
-        )
-        .bind(analysis.batch_id.to_string())
-        .bind(analysis.computed_at_ms)
-        .bind(serde_json::to_string(analysis)?)
-        .execute(&mut *tx)
-        .await?;
-        let stored: String = sqlx::query_scalar("SELECT result FROM analyses WHERE batch_id = ?")
+        let mut tx = self.begin_write().await?;
+        let result: Result<AnalysisView, AppError> = async {
+            sqlx::query(
+                "INSERT INTO analyses (batch_id, computed_at, result) VALUES (?, ?, ?)
+                 ON CONFLICT (batch_id) DO NOTHING",
+            )
             .bind(analysis.batch_id.to_string())
-            .fetch_one(&mut *tx)
+            .bind(analysis.computed_at_ms)
+            .bind(serde_json::to_string(analysis)?)
+            .execute(&mut *tx)
             .await?;
-        tx.commit().await?;
-        Ok(serde_json::from_str(&stored)?)
+            let stored: String =
+                sqlx::query_scalar("SELECT result FROM analyses WHERE batch_id = ?")
+                    .bind(analysis.batch_id.to_string())
+                    .fetch_one(&mut *tx)
+                    .await?;
+            Ok(serde_json::from_str(&stored)?)
+        }
+        .await;
+        tx.finish(result).await
     }
 }
 
@@ -988,6 +1027,9 @@ impl LeaseLookup {
             Some("expired") if self.has_result => {
                 "the lease expired and the run already has a result".to_owned()
             }
+            Some("expired") if !self.batch_active => {
+                "the lease expired and the batch has finished without this run".to_owned()
+            }
             Some(outcome) => format!("the lease is no longer valid ({outcome})"),
             None => "the lease is no longer valid".to_owned(),
         };
@@ -997,7 +1039,7 @@ impl LeaseLookup {
 
 /// Inserts a batch, its runs and their jobs inside the caller's transaction.
 async fn insert_batch_tx(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut WriteTx,
     plan: &PlannedBatch,
     owner: &str,
 ) -> Result<Uuid, AppError> {
@@ -1060,13 +1102,13 @@ async fn insert_batch_tx(
 /// Finds the lease `token` of job `job_id`: 404 if the job does not exist, 409 if the token was
 /// never issued for it.
 async fn lookup_lease(
-    tx: &mut Transaction<'_, Sqlite>,
+    tx: &mut WriteTx,
     job_id: Uuid,
     token: Uuid,
 ) -> Result<LeaseLookup, AppError> {
     let row = sqlx::query(
         "SELECT l.outcome, l.worker_id, j.state, j.lease_token, j.attempts, j.run_id, j.batch_id,
-                r.metrics IS NOT NULL AS has_result, b.response
+                r.metrics IS NOT NULL AS has_result, b.response, b.state AS batch_state
          FROM leases l
          JOIN jobs j ON j.id = l.job_id
          JOIN runs r ON r.id = j.run_id
@@ -1099,13 +1141,14 @@ async fn lookup_lease(
         batch_id: row.try_get("batch_id")?,
         has_result: row.try_get("has_result")?,
         response: row.try_get("response")?,
+        batch_active: row.try_get::<&str, _>("batch_state")? == "active",
     })
 }
 
 /// Ends every lease past its expiry: the job is queued again, or dead when it has used up its
 /// attempts. Returns the batches this finished.
 async fn expire_leases(
-    tx: &mut Transaction<'_, Sqlite>,
+    tx: &mut WriteTx,
     now: i64,
     max_attempts: u32,
 ) -> Result<Vec<Uuid>, AppError> {
@@ -1146,7 +1189,7 @@ async fn expire_leases(
 /// Marks an active batch completed when none of its jobs is queued or leased; true if this call
 /// did it (so exactly one caller triggers the analysis).
 async fn finish_batch_if_done(
-    tx: &mut Transaction<'_, Sqlite>,
+    tx: &mut WriteTx,
     batch_id: &str,
     now: i64,
 ) -> Result<bool, AppError> {
@@ -1308,26 +1351,29 @@ impl Db {
         let first = update
             .next
             .ok_or_else(|| AppError::Internal("a campaign starts with a batch".into()))?;
-        let mut tx = self.writer.begin().await?;
-        sqlx::query(
-            "INSERT INTO campaigns (id, name, owner, status, stage, state, batches_issued,
-                                    created_at, updated_at)
-             VALUES (?, ?, ?, ?, ?, ?, 1, ?, ?)",
-        )
-        .bind(id.to_string())
-        .bind(name)
-        .bind(owner)
-        .bind(update.status)
-        .bind(update.stage)
-        .bind(&update.state)
-        .bind(now)
-        .bind(now)
-        .execute(&mut *tx)
-        .await?;
-        let batch_id = insert_batch_tx(&mut tx, first, owner).await?;
-        link_batch(&mut tx, batch_id, id, 0).await?;
-        tx.commit().await?;
-        Ok(batch_id)
+        let mut tx = self.begin_write().await?;
+        let result: Result<Uuid, AppError> = async {
+            sqlx::query(
+                "INSERT INTO campaigns (id, name, owner, status, stage, state, batches_issued,
+                                        created_at, updated_at)
+                 VALUES (?, ?, ?, ?, ?, ?, 1, ?, ?)",
+            )
+            .bind(id.to_string())
+            .bind(name)
+            .bind(owner)
+            .bind(update.status)
+            .bind(update.stage)
+            .bind(&update.state)
+            .bind(now)
+            .bind(now)
+            .execute(&mut *tx)
+            .await?;
+            let batch_id = insert_batch_tx(&mut tx, first, owner).await?;
+            link_batch(&mut tx, batch_id, id, 0).await?;
+            Ok(batch_id)
+        }
+        .await;
+        tx.finish(result).await
     }
 
     /// Records a campaign step if nobody advanced it since `issued_before` batches were issued;
@@ -1340,36 +1386,39 @@ impl Db {
         update: CampaignUpdate<'_>,
     ) -> Result<Option<Option<Uuid>>, AppError> {
         let now = now_ms();
-        let mut tx = self.writer.begin().await?;
-        let issued_after = issued_before + i64::from(update.next.is_some());
-        let changed = sqlx::query(
-            "UPDATE campaigns SET status = ?, stage = ?, state = ?, batches_issued = ?,
-                                  updated_at = ?
-             WHERE id = ? AND batches_issued = ?",
-        )
-        .bind(update.status)
-        .bind(update.stage)
-        .bind(&update.state)
-        .bind(issued_after)
-        .bind(now)
-        .bind(id.to_string())
-        .bind(issued_before)
-        .execute(&mut *tx)
-        .await?
-        .rows_affected();
-        if changed != 1 {
-            return Ok(None);
-        }
-        let batch_id = match update.next {
-            Some(plan) => {
-                let batch_id = insert_batch_tx(&mut tx, plan, owner.unwrap_or("")).await?;
-                link_batch(&mut tx, batch_id, id, issued_before).await?;
-                Some(batch_id)
+        let mut tx = self.begin_write().await?;
+        let result: Result<Option<Option<Uuid>>, AppError> = async {
+            let issued_after = issued_before + i64::from(update.next.is_some());
+            let changed = sqlx::query(
+                "UPDATE campaigns SET status = ?, stage = ?, state = ?, batches_issued = ?,
+                                      updated_at = ?
+                 WHERE id = ? AND batches_issued = ?",
+            )
+            .bind(update.status)
+            .bind(update.stage)
+            .bind(&update.state)
+            .bind(issued_after)
+            .bind(now)
+            .bind(id.to_string())
+            .bind(issued_before)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if changed != 1 {
+                return Ok(None);
             }
-            None => None,
-        };
-        tx.commit().await?;
-        Ok(Some(batch_id))
+            let batch_id = match update.next {
+                Some(plan) => {
+                    let batch_id = insert_batch_tx(&mut tx, plan, owner.unwrap_or("")).await?;
+                    link_batch(&mut tx, batch_id, id, issued_before).await?;
+                    Some(batch_id)
+                }
+                None => None,
+            };
+            Ok(Some(batch_id))
+        }
+        .await;
+        tx.finish(result).await
     }
 
     /// The campaign a batch belongs to and the batch's position in it.
@@ -1434,7 +1483,7 @@ impl Db {
 }
 
 async fn link_batch(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut WriteTx,
     batch_id: Uuid,
     campaign_id: Uuid,
     index: i64,
@@ -1460,5 +1509,278 @@ fn campaign_from_row(row: &SqliteRow, batch_ids: Vec<Uuid>) -> Result<CampaignRe
         created_at_ms: row.try_get("created_at")?,
         updated_at_ms: row.try_get("updated_at")?,
         batch_ids,
+    })
+}
+
+// Write transactions' bodies; each runs inside the caller's `WriteTx`.
+
+async fn cancel_batch_in(
+    tx: &mut WriteTx,
+    batch_id: Uuid,
+    caller: &str,
+) -> Result<Option<BatchState>, AppError> {
+    let now = now_ms();
+    let id = batch_id.to_string();
+    let Some(row) = sqlx::query("SELECT state, owner FROM batches WHERE id = ?")
+        .bind(&id)
+        .fetch_optional(&mut **tx)
+        .await?
+    else {
+        return Ok(None);
+    };
+    let owner: Option<String> = row.try_get("owner")?;
+    if let Some(owner) = owner.filter(|owner| owner != caller) {
+        return Err(AppError::Forbidden(format!(
+            "batch {batch_id} belongs to `{owner}`; only its owner may cancel it"
+        )));
+    }
+    let state = batch_state_from_db(row.try_get("state")?)?;
+    if state != BatchState::Active {
+        return Ok(Some(state));
+    }
+    sqlx::query(
+        "UPDATE leases SET outcome = 'cancelled', ended_at = ?
+         WHERE token IN (SELECT lease_token FROM jobs WHERE batch_id = ? AND state = 'leased')",
+    )
+    .bind(now)
+    .bind(&id)
+    .execute(&mut **tx)
+    .await?;
+    sqlx::query(
+        "UPDATE jobs SET state = 'cancelled', lease_token = NULL, lease_expires_at = NULL,
+                         updated_at = ?
+         WHERE batch_id = ? AND state IN ('queued', 'leased')",
+    )
+    .bind(now)
+    .bind(&id)
+    .execute(&mut **tx)
+    .await?;
+    sqlx::query("UPDATE batches SET state = 'cancelled', finished_at = ? WHERE id = ?")
+        .bind(now)
+        .bind(&id)
+        .execute(&mut **tx)
+        .await?;
+
+    Ok(Some(BatchState::Cancelled))
+}
+
+async fn heartbeat_in(
+    tx: &mut WriteTx,
+    job_id: Uuid,
+    token: Uuid,
+    progress: f64,
+    lease: Duration,
+) -> Result<HeartbeatOutcome, AppError> {
+    let now = now_ms();
+    let found = lookup_lease(tx, job_id, token).await?;
+    if found.is_current(token) {
+        sqlx::query(
+            "UPDATE jobs SET lease_expires_at = ?, progress = ?, updated_at = ? WHERE id = ?",
+        )
+        .bind(now + duration_ms(lease))
+        .bind(progress.clamp(0.0, 1.0))
+        .bind(now)
+        .bind(job_id.to_string())
+        .execute(&mut **tx)
+        .await?;
+        sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ?")
+            .bind(now)
+            .bind(&found.worker_id)
+            .execute(&mut **tx)
+            .await?;
+        return Ok(HeartbeatOutcome {
+            cancel: false,
+            lease_expires_in_s: lease.as_secs_f64(),
+        });
+    }
+    match found.outcome.as_deref() {
+        Some("cancelled" | "superseded") => Ok(HeartbeatOutcome {
+            cancel: true,
+            lease_expires_in_s: 0.0,
+        }),
+        _ => Err(found.stale_conflict()),
+    }
+}
+
+async fn complete_in(
+    tx: &mut WriteTx,
+    job_id: Uuid,
+    token: Uuid,
+    completion: &Completion,
+) -> Result<JobUpdate, AppError> {
+    let now = now_ms();
+    let found = lookup_lease(tx, job_id, token).await?;
+    let current = found.is_current(token);
+    // A late result is accepted only while its batch is still active: once the batch has
+    // finished, its analysis may be stored and a campaign may have moved on, and neither may
+    // silently disagree with the counts.
+    let late = found.outcome.as_deref() == Some("expired")
+        && !found.has_result
+        && found.batch_active
+        && matches!(found.job_state.as_str(), "queued" | "leased" | "dead");
+    if !(current || late) {
+        return Err(found.stale_conflict());
+    }
+    match completion.metrics.get(&found.response) {
+        Some(value) if value.is_finite() => {}
+        _ => {
+            return Err(AppError::invalid(
+                format!("metrics.{}", found.response),
+                format!(
+                    "the batch's response metric `{}` is missing or not finite",
+                    found.response
+                ),
+            ))
+        }
+    }
+    if !(completion.wall_time_s.is_finite() && completion.wall_time_s >= 0.0) {
+        return Err(AppError::invalid(
+            "wall_time_s",
+            "must be a non-negative number",
+        ));
+    }
+    let stored = sqlx::query(
+        "UPDATE runs SET metrics = ?, details = ?, wall_time_s = ?, worker_id = ?,
+                         completed_at = ?, engine_version = ?,
+                         pictures = CASE WHEN (SELECT keep_pictures FROM batches
+                                               WHERE batches.id = runs.batch_id)
+                                         THEN ? END
+         WHERE id = ? AND metrics IS NULL",
+    )
+    .bind(serde_json::to_string(&completion.metrics)?)
+    .bind(serde_json::to_string(&completion.details)?)
+    .bind(completion.wall_time_s)
+    .bind(&found.worker_id)
+    .bind(now)
+    .bind(&completion.engine_version)
+    .bind(if completion.pictures.is_empty() {
+        None
+    } else {
+        Some(serde_json::to_string(&completion.pictures)?)
+    })
+    .bind(&found.run_id)
+    .execute(&mut **tx)
+    .await?
+    .rows_affected();
+    if stored != 1 {
+        return Err(AppError::Conflict("the run already has a result".into()));
+    }
+    // The rest of the bookkeeping in one round trip to SQLite (the statements run in
+    // order inside this transaction; the last one reports whether the batch finished).
+    // Someone else holding the job now (a late result of an expired lease won): their
+    // lease is superseded, their work moot.
+    let superseded = match (current, &found.current_token) {
+        (false, Some(other)) => Some(other.clone()),
+        _ => None,
+    };
+    let batch_finished: i64 = sqlx::query_scalar(
+        "UPDATE leases SET outcome = 'completed', ended_at = ? WHERE token = ?;
+         UPDATE leases SET outcome = 'superseded', ended_at = ? WHERE token = ?;
+         UPDATE jobs SET state = 'completed', lease_token = NULL, lease_expires_at = NULL,
+                         progress = 1, updated_at = ?
+         WHERE id = ?;
+         UPDATE batches SET state = 'completed', finished_at = ?
+         WHERE id = ? AND state = 'active'
+           AND NOT EXISTS (SELECT 1 FROM jobs
+                           WHERE batch_id = ? AND state IN ('queued', 'leased'));
+         SELECT changes();",
+    )
+    // Plain `?` placeholders, bound in order across the statements.
+    .bind(now)
+    .bind(token.to_string())
+    .bind(now)
+    .bind(superseded)
+    .bind(now)
+    .bind(job_id.to_string())
+    .bind(now)
+    .bind(&found.batch_id)
+    .bind(&found.batch_id)
+    .fetch_one(&mut **tx)
+    .await?;
+    let batch_finished = batch_finished == 1;
+
+    Ok(JobUpdate {
+        batch_id: parse_uuid(&found.batch_id)?,
+        status: RunState::Completed,
+        batch_finished,
+        requeued: false,
+    })
+}
+
+async fn fail_in(
+    tx: &mut WriteTx,
+    job_id: Uuid,
+    token: Uuid,
+    error: &str,
+    max_attempts: u32,
+    backoff: Duration,
+) -> Result<JobUpdate, AppError> {
+    let now = now_ms();
+    let found = lookup_lease(tx, job_id, token).await?;
+    if !found.is_current(token) {
+        return Err(found.stale_conflict());
+    }
+    let dead = found.attempts >= i64::from(max_attempts);
+    let exponent = u32::try_from(found.attempts.saturating_sub(1).clamp(0, 20)).unwrap_or(20);
+    let retry_at = now.saturating_add(duration_ms(backoff).saturating_mul(1 << exponent));
+    sqlx::query("UPDATE leases SET outcome = 'failed', ended_at = ? WHERE token = ?")
+        .bind(now)
+        .bind(token.to_string())
+        .execute(&mut **tx)
+        .await?;
+    sqlx::query(
+        "UPDATE jobs SET state = ?, lease_token = NULL, lease_expires_at = NULL,
+                         available_at = ?, last_error = ?, updated_at = ?
+         WHERE id = ?",
+    )
+    .bind(if dead { "dead" } else { "queued" })
+    .bind(retry_at)
+    .bind(error)
+    .bind(now)
+    .bind(job_id.to_string())
+    .execute(&mut **tx)
+    .await?;
+    let batch_finished = dead && finish_batch_if_done(tx, &found.batch_id, now).await?;
+
+    Ok(JobUpdate {
+        batch_id: parse_uuid(&found.batch_id)?,
+        status: if dead {
+            RunState::Dead
+        } else {
+            RunState::Queued
+        },
+        batch_finished,
+        requeued: !dead,
+    })
+}
+
+async fn release_in(tx: &mut WriteTx, job_id: Uuid, token: Uuid) -> Result<JobUpdate, AppError> {
+    let now = now_ms();
+    let found = lookup_lease(tx, job_id, token).await?;
+    if !found.is_current(token) {
+        return Err(found.stale_conflict());
+    }
+    sqlx::query("UPDATE leases SET outcome = 'released', ended_at = ? WHERE token = ?")
+        .bind(now)
+        .bind(token.to_string())
+        .execute(&mut **tx)
+        .await?;
+    sqlx::query(
+        "UPDATE jobs SET state = 'queued', attempts = MAX(attempts - 1, 0), lease_token = NULL,
+                         lease_expires_at = NULL, worker_id = NULL, available_at = ?,
+                         updated_at = ?
+         WHERE id = ?",
+    )
+    .bind(now)
+    .bind(now)
+    .bind(job_id.to_string())
+    .execute(&mut **tx)
+    .await?;
+
+    Ok(JobUpdate {
+        batch_id: parse_uuid(&found.batch_id)?,
+        status: RunState::Queued,
+        batch_finished: false,
+        requeued: true,
     })
 }

@@ -38,6 +38,18 @@ const BATCH_LIST_LIMIT: u32 = 500;
 /// Workers listed by `GET /v1/workers`.
 const WORKER_LIST_LIMIT: u32 = 1000;
 
+/// Longest error text a worker may report for a failed run, in bytes.
+const MAX_ERROR_BYTES: usize = 16 * 1024;
+
+/// Largest `details` document of a completion (serialized), in bytes.
+const MAX_DETAILS_BYTES: usize = 64 * 1024;
+
+/// Most metrics one completion may report.
+const MAX_METRICS: usize = 256;
+
+/// Largest single picture of a completion, in bytes.
+const MAX_PICTURE_BYTES: usize = 2 * 1024 * 1024;
+
 /// Default and largest `limit` of `GET /v1/jobs`.
 const JOB_LIST_DEFAULT: u32 = 100;
 const JOB_LIST_MAX: u32 = 10_000;
@@ -233,8 +245,16 @@ struct FormatQuery {
     format: Option<String>,
 }
 
+/// 200 when the database answers reads and commits a write through the writer; 503 otherwise
+/// (and while the last real write failed for a storage reason such as a full disk).
 async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError> {
-    state.db.ping().await?;
+    state.db.ping().await.map_err(|err| match err {
+        AppError::Unavailable(_) => err,
+        other => {
+            tracing::warn!(error = %other, "health check failed");
+            AppError::Unavailable("the database is not writable".into())
+        }
+    })?;
     Ok(Json(Health {
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
@@ -432,6 +452,23 @@ fn analyse_in_background(state: &AppState, batches: Vec<Uuid>) {
     }
 }
 
+/// Returns expired leases to the queue every [`crate::Config::reclaim_interval`], so a job
+/// whose worker vanished is claimable (or dead, finishing its batch) even when no worker polls.
+pub(crate) async fn reclaim_expired_leases(state: AppState) {
+    let mut ticks = tokio::time::interval(state.config.reclaim_interval);
+    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        ticks.tick().await;
+        match state.db.reclaim_expired(state.config.max_attempts).await {
+            Ok(finished) => {
+                state.jobs_available.notify_waiters();
+                analyse_in_background(&state, finished);
+            }
+            Err(err) => tracing::warn!(error = %err, "reclaiming expired leases failed"),
+        }
+    }
+}
+
 async fn list_workers(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
     Ok(Json(state.db.list_workers(WORKER_LIST_LIMIT).await?))
 }
@@ -482,9 +519,15 @@ async fn list_jobs(
 
 async fn register_worker(
     State(state): State<AppState>,
+    caller: Caller,
     ValidJson(registration): ValidJson<WorkerRegistration>,
 ) -> Result<impl IntoResponse, AppError> {
-    state.db.register_worker(&registration).await?;
+    submit::check_name_length("host", &registration.host)?;
+    submit::check_name_length("version", &registration.version)?;
+    state
+        .db
+        .register_worker(&registration, &caller.name)
+        .await?;
     tracing::info!(worker = %registration.instance_id, host = %registration.host, "worker registered");
     Ok(Json(WorkerRegistered {
         worker_id: registration.instance_id,
@@ -495,12 +538,19 @@ async fn register_worker(
 /// Leases a job, waiting up to `wait_s` for one; 204 when none arrives in time.
 async fn claim_job(
     State(state): State<AppState>,
+    caller: Caller,
     ValidJson(request): ValidJson<ClaimRequest>,
 ) -> Result<Response, AppError> {
     if !(request.wait_s.is_finite() && request.wait_s >= 0.0) {
         return Err(AppError::invalid("wait_s", "must be a non-negative number"));
     }
-    let wait = Duration::from_secs_f64(request.wait_s).min(state.config.max_claim_wait);
+    // Clamped before converting: any finite wait is allowed, and waits at most the maximum.
+    let wait = Duration::try_from_secs_f64(
+        request
+            .wait_s
+            .min(state.config.max_claim_wait.as_secs_f64()),
+    )
+    .unwrap_or(state.config.max_claim_wait);
     let deadline = Instant::now() + wait;
     let mut shutdown = state.shutdown.clone();
     loop {
@@ -515,6 +565,7 @@ async fn claim_job(
             .db
             .claim(
                 request.worker_id,
+                &caller.name,
                 state.config.lease,
                 state.config.max_attempts,
             )
@@ -564,6 +615,7 @@ async fn complete_job(
     ValidJson(completion): ValidJson<Completion>,
 ) -> Result<impl IntoResponse, AppError> {
     let job_id = parse_id(&raw_id, "job")?;
+    check_completion_sizes(&completion)?;
     let update = state
         .db
         .complete(job_id, completion.lease_token, &completion)
@@ -578,6 +630,12 @@ async fn fail_job(
     ValidJson(failure): ValidJson<Failure>,
 ) -> Result<impl IntoResponse, AppError> {
     let job_id = parse_id(&raw_id, "job")?;
+    if failure.error.len() > MAX_ERROR_BYTES {
+        return Err(AppError::invalid(
+            "error",
+            format!("at most {MAX_ERROR_BYTES} bytes of error text"),
+        ));
+    }
     let update = state
         .db
         .fail(
@@ -607,6 +665,39 @@ async fn release_job(
     let update = state.db.release(job_id, release.lease_token).await?;
     state.metrics.released();
     Ok(after_update(&state, job_id, update))
+}
+
+/// Bounds every free-form part of a result, naming the field that is too large.
+fn check_completion_sizes(completion: &Completion) -> Result<(), AppError> {
+    if completion.metrics.len() > MAX_METRICS {
+        return Err(AppError::invalid(
+            "metrics",
+            format!("at most {MAX_METRICS} metrics"),
+        ));
+    }
+    for name in completion.metrics.keys() {
+        submit::check_name_length("metrics", name)?;
+    }
+    if let Some(version) = &completion.engine_version {
+        submit::check_name_length("engine_version", version)?;
+    }
+    let details = serde_json::to_string(&completion.details)?;
+    if details.len() > MAX_DETAILS_BYTES {
+        return Err(AppError::invalid(
+            "details",
+            format!("at most {MAX_DETAILS_BYTES} bytes of details"),
+        ));
+    }
+    for (name, picture) in &completion.pictures {
+        submit::check_name_length("pictures", name)?;
+        if picture.len() > MAX_PICTURE_BYTES {
+            return Err(AppError::invalid(
+                format!("pictures.{name}"),
+                format!("at most {MAX_PICTURE_BYTES} bytes per picture"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Wakes waiting claims and starts the analysis as the update requires.
