@@ -13,8 +13,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use repose_api::{
-    AnalysisView, BatchState, BatchStatus, BatchSummary, ClaimResponse, Completion, FactorValue,
-    JobView, ModelName, RunState, RunView, StateCounts, WorkerRegistration, WorkerView,
+    apply_factor_values, AnalysisView, BatchState, BatchStatus, BatchSummary, ClaimResponse,
+    Completion, FactorValue, JobView, ModelName, RunState, RunView, StateCounts,
+    WorkerRegistration, WorkerView,
 };
 use repose_doe::design::{DesignKind, Factor};
 use serde_json::Value;
@@ -54,6 +55,21 @@ fn duration_ms(duration: Duration) -> i64 {
 /// re-checks within `CLAIM_RECHECK` anyway), so the hot claim path is usually one statement.
 const EXPIRY_CHECK_INTERVAL_MS: i64 = 100;
 
+/// Runs per multi-row INSERT (9 parameters each, well under SQLite's 32,766).
+const INSERT_CHUNK: usize = 100;
+
+/// Batch templates kept in memory for building run specs; the cache is emptied when full.
+const TEMPLATE_CACHE: usize = 64;
+
+/// What a batch's run specs are built from.
+#[derive(Debug)]
+struct RunTemplate {
+    /// The experiment spec without factor values.
+    template: Value,
+    /// The factors' spec paths, in factor order.
+    paths: Vec<String>,
+}
+
 /// A worker's `last_seen_at` is rewritten by claims at most this often.
 const LAST_SEEN_RESOLUTION_MS: i64 = 1000;
 
@@ -68,6 +84,8 @@ pub struct Db {
     seen_workers: Arc<Mutex<HashMap<Uuid, (String, i64)>>>,
     /// Whether writes currently fail, for the health check.
     writer_health: Arc<WriterHealth>,
+    /// Templates of recently claimed batches (immutable once stored).
+    templates: Arc<Mutex<HashMap<Uuid, Arc<RunTemplate>>>>,
 }
 
 /// Storage settings of [`Db::open_with`].
@@ -321,6 +339,7 @@ impl Db {
             writer,
             reader,
             writer_health: Arc::default(),
+            templates: Arc::default(),
             next_expiry_check_ms: Arc::new(AtomicI64::new(0)),
             seen_workers: Arc::default(),
         })
@@ -442,6 +461,64 @@ impl Db {
         }))
     }
 
+    /// A run's complete experiment spec: stored whole for batches from before templates, else
+    /// the batch's template with the run's natural values written at the factor paths.
+    async fn run_spec(
+        &self,
+        batch_id: Uuid,
+        stored_spec: &str,
+        natural: &str,
+    ) -> Result<Value, AppError> {
+        if !stored_spec.is_empty() {
+            return Ok(serde_json::from_str(stored_spec)?);
+        }
+        let template = self.template(batch_id).await?;
+        let natural: Vec<f64> = serde_json::from_str(natural)?;
+        apply_factor_values(
+            &template.template,
+            template
+                .paths
+                .iter()
+                .map(String::as_str)
+                .zip(natural.iter().copied()),
+        )
+        .map_err(|err| AppError::Internal(format!("stored run spec of batch {batch_id}: {err}")))
+    }
+
+    /// The template of a batch, from the cache or the database.
+    async fn template(&self, batch_id: Uuid) -> Result<Arc<RunTemplate>, AppError> {
+        if let Some(found) = self
+            .templates
+            .lock()
+            .ok()
+            .and_then(|cache| cache.get(&batch_id).cloned())
+        {
+            return Ok(found);
+        }
+        let row = sqlx::query("SELECT template, request FROM batches WHERE id = ?")
+            .bind(batch_id.to_string())
+            .fetch_one(&self.reader)
+            .await?;
+        let template: Option<String> = row.try_get("template")?;
+        let template = template.ok_or_else(|| {
+            AppError::Internal(format!(
+                "batch {batch_id} has neither run specs nor a template"
+            ))
+        })?;
+        let request: repose_api::BatchRequest = serde_json::from_str(row.try_get("request")?)?;
+        let loaded = Arc::new(RunTemplate {
+            template: serde_json::from_str(&template)?,
+            paths: request.factors.into_iter().map(|f| f.path).collect(),
+        });
+        if let Ok(mut cache) = self.templates.lock() {
+            if cache.len() >= TEMPLATE_CACHE {
+                cache.clear();
+            }
+            cache.insert(batch_id, Arc::clone(&loaded));
+        }
+        Ok(loaded)
+    }
+
     /// Every run of a batch in run order, or `None` if the batch does not exist.
     pub async fn list_runs(
         &self,
@@ -467,11 +544,30 @@ impl Db {
         .bind(batch_id.to_string())
         .fetch_all(&self.reader)
         .await?;
+        let mut spec_texts = Vec::with_capacity(rows.len());
+        for row in &rows {
+            let stored: &str = row.try_get("spec")?;
+            spec_texts.push(if stored.is_empty() {
+                let spec = self
+                    .run_spec(batch_id, stored, row.try_get("natural")?)
+                    .await?;
+                serde_json::to_string(&spec)?
+            } else {
+                stored.to_owned()
+            });
+        }
         let runs = rows
             .iter()
-            .map(|row| -> Result<RunView, AppError> {
-                let coded: Vec<f64> = serde_json::from_str(row.try_get("coded")?)?;
-                let natural: Vec<f64> = serde_json::from_str(row.try_get("natural")?)?;
+            .enumerate()
+            .map(|(index, row)| -> Result<RunView, AppError> {
+                // Lenient: batches stored before non-finite values were refused hold `null`s
+                // here; they read back as NaN (`null` in JSON) instead of failing the request.
+                let lenient = |column: &str| -> Result<Vec<f64>, AppError> {
+                    let values: Vec<Option<f64>> = serde_json::from_str(row.try_get(column)?)?;
+                    Ok(values.into_iter().map(|v| v.unwrap_or(f64::NAN)).collect())
+                };
+                let coded = lenient("coded")?;
+                let natural = lenient("natural")?;
                 let factors = names
                     .iter()
                     .zip(coded.iter().zip(&natural))
@@ -496,7 +592,7 @@ impl Db {
                     wall_time_s: row.try_get("wall_time_s")?,
                     worker_id: worker_id.as_deref().map(parse_uuid).transpose()?,
                     last_error: row.try_get("last_error")?,
-                    spec_sha256: Some(short_sha256(row.try_get::<&str, _>("spec")?)),
+                    spec_sha256: Some(short_sha256(&spec_texts[index])),
                     engine_version: row.try_get("engine_version")?,
                 })
             })
@@ -659,6 +755,7 @@ impl Db {
                  WHERE id = (SELECT job_id FROM leases WHERE token = ?)
                  RETURNING id, run_id, batch_id, attempts,
                            (SELECT spec FROM runs WHERE runs.id = jobs.run_id) AS spec,
+                           (SELECT natural FROM runs WHERE runs.id = jobs.run_id) AS natural,
                            (SELECT seed FROM runs WHERE runs.id = jobs.run_id) AS seed,
                            (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind,
                            (SELECT keep_pictures FROM batches WHERE batches.id = jobs.batch_id)
@@ -681,14 +778,21 @@ impl Db {
             let job_id: String = claimed.try_get("id")?;
             let run_id: String = claimed.try_get("run_id")?;
             let attempt: i64 = claimed.try_get("attempts")?;
-            let spec: Value = serde_json::from_str(claimed.try_get("spec")?)?;
+            let batch_id = parse_uuid(claimed.try_get("batch_id")?)?;
+            let spec = self
+                .run_spec(
+                    batch_id,
+                    claimed.try_get("spec")?,
+                    claimed.try_get("natural")?,
+                )
+                .await?;
             Ok((
                 Some(ClaimResponse {
                     job_id: parse_uuid(&job_id)?,
                     lease_token: token,
                     lease_expires_in_s: lease.as_secs_f64(),
                     run_id: parse_uuid(&run_id)?,
-                    batch_id: parse_uuid(claimed.try_get("batch_id")?)?,
+                    batch_id,
                     kind: claimed.try_get("kind")?,
                     spec,
                     seed: claimed.try_get::<i64, _>("seed")? as u64,
@@ -1048,8 +1152,9 @@ async fn insert_batch_tx(
     let request = &plan.request;
     sqlx::query(
         "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
-                                  target, base_seed, state, created_at, owner, keep_pictures)
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?, ?)",
+                                  target, base_seed, state, created_at, owner, keep_pictures,
+                                  template)
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?, ?, ?)",
     )
     .bind(batch_id.to_string())
     .bind(&request.name)
@@ -1064,37 +1169,53 @@ async fn insert_batch_tx(
     .bind(now)
     .bind(owner)
     .bind(request.keep_pictures)
+    .bind(serde_json::to_string(&plan.template)?)
     .execute(&mut **tx)
     .await?;
-    for run in &plan.runs {
-        let run_id = Uuid::new_v4().to_string();
-        sqlx::query(
+    // Multi-row inserts: a 10,000-run batch is 100 statements, not 20,000, and holds the
+    // writer briefly. Runs store no spec of their own ('': the batch's template plus `natural`).
+    let batch_text = batch_id.to_string();
+    for chunk in plan.runs.chunks(INSERT_CHUNK) {
+        let run_ids: Vec<String> = chunk.iter().map(|_| Uuid::new_v4().to_string()).collect();
+        let mut runs = sqlx::QueryBuilder::<Sqlite>::new(
             "INSERT INTO runs (id, batch_id, run_index, design_row, replicate, coded, natural,
-                                   seed, spec)
-                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-        )
-        .bind(&run_id)
-        .bind(batch_id.to_string())
-        .bind(run.run_index as i64)
-        .bind(run.design_row as i64)
-        .bind(run.replicate as i64)
-        .bind(serde_json::to_string(&run.coded)?)
-        .bind(serde_json::to_string(&run.natural)?)
-        .bind(run.seed as i64)
-        .bind(serde_json::to_string(&run.spec)?)
-        .execute(&mut **tx)
-        .await?;
-        sqlx::query(
-            "INSERT INTO jobs (id, run_id, batch_id, state, attempts, available_at, updated_at)
-                 VALUES (?, ?, ?, 'queued', 0, ?, ?)",
-        )
-        .bind(Uuid::new_v4().to_string())
-        .bind(&run_id)
-        .bind(batch_id.to_string())
-        .bind(now)
-        .bind(now)
-        .execute(&mut **tx)
-        .await?;
+                               seed, spec) ",
+        );
+        let mut encoded = Vec::with_capacity(chunk.len());
+        for run in chunk {
+            encoded.push((
+                serde_json::to_string(&run.coded)?,
+                serde_json::to_string(&run.natural)?,
+            ));
+        }
+        runs.push_values(
+            chunk.iter().zip(&run_ids).zip(&encoded),
+            |mut row, ((run, run_id), (coded, natural))| {
+                row.push_bind(run_id)
+                    .push_bind(&batch_text)
+                    .push_bind(run.run_index as i64)
+                    .push_bind(run.design_row as i64)
+                    .push_bind(run.replicate as i64)
+                    .push_bind(coded)
+                    .push_bind(natural)
+                    .push_bind(run.seed as i64)
+                    .push_bind("");
+            },
+        );
+        runs.build().execute(&mut **tx).await?;
+        let mut jobs = sqlx::QueryBuilder::<Sqlite>::new(
+            "INSERT INTO jobs (id, run_id, batch_id, state, attempts, available_at, updated_at) ",
+        );
+        jobs.push_values(&run_ids, |mut row, run_id| {
+            row.push_bind(Uuid::new_v4().to_string())
+                .push_bind(run_id)
+                .push_bind(&batch_text)
+                .push_bind("queued")
+                .push_bind(0_i64)
+                .push_bind(now)
+                .push_bind(now);
+        });
+        jobs.build().execute(&mut **tx).await?;
     }
     Ok(batch_id)
 }

@@ -121,8 +121,6 @@ pub struct PlannedRun {
     pub natural: Vec<f64>,
     /// DEM seed, distinct for every run of the batch.
     pub seed: u64,
-    /// Experiment spec with the natural values written at the factor paths.
-    pub spec: Value,
 }
 
 /// A validated submission.
@@ -136,6 +134,8 @@ pub struct PlannedBatch {
     pub design_kind: DesignKind,
     /// Seed the run order and run seeds derive from.
     pub base_seed: u64,
+    /// The complete experiment spec before factor values are written in (stored once).
+    pub template: Value,
     /// The runs, in claim order.
     pub runs: Vec<PlannedRun>,
 }
@@ -251,7 +251,6 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
                 coded: run.coded,
                 natural,
                 seed: run.seed,
-                spec,
             })
         })
         .collect::<Result<Vec<_>, AppError>>()?;
@@ -261,6 +260,7 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
         design_kind: design.kind(),
         base_seed,
         runs,
+        template,
         request,
     })
 }
@@ -503,12 +503,17 @@ mod tests {
         seeds.dedup();
         assert_eq!(seeds.len(), 8);
         for run in &plan.runs {
-            let friction = &run.spec["soil_soil"]["static_friction"];
+            // The stored form: the batch's template plus the run's natural values.
+            let paths = ["soil_soil.static_friction", "soil_soil.restitution"];
+            let spec =
+                apply_factor_values(&plan.template, paths.into_iter().zip(run.natural.clone()))
+                    .unwrap();
+            let friction = &spec["soil_soil"]["static_friction"];
             assert_eq!(friction.as_f64().unwrap(), run.natural[0]);
-            let restitution = &run.spec["soil_soil"]["restitution"];
+            let restitution = &spec["soil_soil"]["restitution"];
             assert_eq!(restitution.as_f64().unwrap(), run.natural[1]);
             assert_eq!(
-                run.spec["total_mass"],
+                spec["total_mass"],
                 json!(0.03),
                 "the fast preset fills the rest"
             );
