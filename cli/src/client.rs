@@ -389,8 +389,8 @@ pub fn status(args: &StatusArgs) -> Result<()> {
 }
 
 pub fn watch(args: &WatchArgs) -> Result<()> {
-    if !(args.interval_s.is_finite() && args.interval_s >= 0.05) {
-        bail!("--interval-s must be at least 0.05");
+    if !(args.interval_s.is_finite() && (0.05..=86_400.0).contains(&args.interval_s)) {
+        bail!("--interval-s must be between 0.05 and 86400");
     }
     let client = UserClient::new(&args.server.server, args.server.token.clone())?;
     runtime()?.block_on(finish_watch(

@@ -159,7 +159,9 @@ pub async fn run(
             }
         }
     };
-    let lease = Duration::from_secs_f64(registered.lease_s.max(1.0));
+    // The server's value, clamped: never a panic on a strange number.
+    let lease = Duration::try_from_secs_f64(registered.lease_s.clamp(1.0, 86_400.0))
+        .unwrap_or(Duration::from_secs(60));
     tracing::info!(worker = %registered.worker_id, server = %config.server, slots = config.slots,
         threads = config.threads, "worker registered");
 
@@ -290,7 +292,8 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
     };
     // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
     if let Ok(Ok(outcome)) = &outcome {
-        let hold = Duration::from_secs_f64(outcome.hold_s);
+        let hold =
+            Duration::try_from_secs_f64(outcome.hold_s.clamp(0.0, 86_400.0)).unwrap_or_default();
         let deadline = tokio::time::Instant::now() + hold;
         while tokio::time::Instant::now() < deadline && !signals.cancel.load(Ordering::SeqCst) {
             tokio::time::sleep(Duration::from_millis(50).min(hold)).await;
