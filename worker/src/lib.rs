@@ -417,14 +417,13 @@ where
                     }
                     // Running: a stop request starts the grace period early.
                     None => {
-                        tokio::select! {
-                            () = tokio::time::sleep(delay) => {}
-                            stopped = stop.wait_for(|s| *s) => {
-                                // No stop sender any more: just wait out the delay.
-                                if stopped.is_err() {
-                                    tokio::time::sleep(delay).await;
-                                }
-                            }
+                        let sender_gone = tokio::select! {
+                            () = tokio::time::sleep(delay) => false,
+                            stopped = stop.wait_for(|s| *s) => stopped.is_err(),
+                        };
+                        // No stop sender any more: just wait out the delay.
+                        if sender_gone {
+                            tokio::time::sleep(delay).await;
                         }
                     }
                 }
