@@ -24,8 +24,12 @@ pub struct ServerArgs {
     /// Let requests without a token use the read-only GET endpoints (batches, runs, analyses,
     /// workers, jobs, metrics). Submitting, cancelling and the worker protocol always need a
     /// token (`repose token create`).
-    #[arg(long, env = "REPOSE_OPEN_READ")]
+    #[arg(long, env = "REPOSE_OPEN_READ", conflicts_with = "private_reads")]
     pub open_read: bool,
+    /// Users read only their own batches and campaigns (and their batches' jobs); worker
+    /// tokens read only their own workers' jobs. Default: any valid token reads everything.
+    #[arg(long, env = "REPOSE_PRIVATE_READS")]
+    pub private_reads: bool,
     /// `normal`: an acknowledged result survives a crash of the server process (SQLite
     /// `synchronous=NORMAL` in WAL mode) but the last ones may be lost on power loss; `full`:
     /// it survives power loss too (an fsync per write, slower).
@@ -52,6 +56,7 @@ fn config(args: &ServerArgs) -> Result<Config> {
     config.lease = Duration::from_secs_f64(args.lease_s);
     config.max_attempts = args.max_attempts;
     config.open_read = args.open_read;
+    config.private_reads = args.private_reads;
     config.durability_full = args.durability == "full";
     Ok(config)
 }

@@ -264,6 +264,30 @@ pub struct AnalysisInput {
     pub completed: Vec<(Vec<f64>, BTreeMap<String, f64>)>,
 }
 
+/// What a reader may see (see `Config::private_reads`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadScope<'a> {
+    /// Everything.
+    All,
+    /// The batches, campaigns and jobs of this user token.
+    User(&'a str),
+    /// The jobs of the workers this worker token registered.
+    Worker(&'a str),
+}
+
+/// The owner of a batch: `None` if it does not exist, `Some(None)` if it has none (from before
+/// access control).
+impl Db {
+    pub async fn batch_owner(&self, batch_id: Uuid) -> Result<Option<Option<String>>, AppError> {
+        let owner: Option<Option<String>> =
+            sqlx::query_scalar("SELECT owner FROM batches WHERE id = ?")
+                .bind(batch_id.to_string())
+                .fetch_optional(&self.reader)
+                .await?;
+        Ok(owner)
+    }
+}
+
 /// Result of a completion, failure or release.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct JobUpdate {
@@ -413,10 +437,17 @@ impl Db {
     }
 
     /// The most recent batches, newest first.
-    pub async fn list_batches(&self, limit: u32) -> Result<Vec<BatchSummary>, AppError> {
+    /// Only batches of `owner` when given.
+    pub async fn list_batches(
+        &self,
+        limit: u32,
+        owner: Option<&str>,
+    ) -> Result<Vec<BatchSummary>, AppError> {
         let rows = sqlx::query(&format!(
-            "{SUMMARY_SELECT} GROUP BY b.id ORDER BY b.created_at DESC, b.rowid DESC LIMIT ?"
+            "{SUMMARY_SELECT} WHERE (?1 IS NULL OR b.owner = ?1)
+             GROUP BY b.id ORDER BY b.created_at DESC, b.rowid DESC LIMIT ?2"
         ))
+        .bind(owner)
         .bind(i64::from(limit))
         .fetch_all(&self.reader)
         .await?;
@@ -893,23 +924,34 @@ impl Db {
             .collect()
     }
 
-    /// Jobs, most recently changed first, optionally only those in `status` or of `batch_id`.
+    /// Jobs, most recently changed first, optionally only those in `status` or of `batch_id`,
+    /// and only those `scope` may see.
     pub async fn list_jobs(
         &self,
         status: Option<RunState>,
         batch_id: Option<Uuid>,
         limit: u32,
+        scope: ReadScope<'_>,
     ) -> Result<Vec<JobView>, AppError> {
+        let (owner, worker_token) = match scope {
+            ReadScope::All => (None, None),
+            ReadScope::User(name) => (Some(name), None),
+            ReadScope::Worker(name) => (None, Some(name)),
+        };
         let rows = sqlx::query(
             "SELECT j.id, j.run_id, j.batch_id, r.run_index, j.state, j.attempts, j.worker_id,
                     j.progress, j.lease_expires_at, j.available_at, j.last_error, j.updated_at
              FROM jobs j JOIN runs r ON r.id = j.run_id
              WHERE (?1 IS NULL OR j.state = ?1) AND (?2 IS NULL OR j.batch_id = ?2)
+               AND (?4 IS NULL OR j.batch_id IN (SELECT id FROM batches WHERE owner = ?4))
+               AND (?5 IS NULL OR j.worker_id IN (SELECT id FROM workers WHERE token = ?5))
              ORDER BY j.updated_at DESC, j.rowid DESC LIMIT ?3",
         )
         .bind(status.map(job_state_to_db))
         .bind(batch_id.map(|id| id.to_string()))
         .bind(i64::from(limit))
+        .bind(owner)
+        .bind(worker_token)
         .fetch_all(&self.reader)
         .await?;
         rows.iter()
@@ -1581,12 +1623,20 @@ impl Db {
         Ok(Some(campaign_from_row(&row, batch_ids)?))
     }
 
-    /// The newest campaigns (without their batch ids), newest first.
-    pub async fn list_campaigns(&self, limit: u32) -> Result<Vec<CampaignRecord>, AppError> {
-        let rows = sqlx::query("SELECT * FROM campaigns ORDER BY created_at DESC LIMIT ?")
-            .bind(i64::from(limit))
-            .fetch_all(&self.reader)
-            .await?;
+    /// The newest campaigns (without their batch ids), newest first; only `owner`'s if given.
+    pub async fn list_campaigns(
+        &self,
+        limit: u32,
+        owner: Option<&str>,
+    ) -> Result<Vec<CampaignRecord>, AppError> {
+        let rows = sqlx::query(
+            "SELECT * FROM campaigns WHERE (?1 IS NULL OR owner = ?1)
+             ORDER BY created_at DESC LIMIT ?2",
+        )
+        .bind(owner)
+        .bind(i64::from(limit))
+        .fetch_all(&self.reader)
+        .await?;
         rows.iter()
             .map(|row| campaign_from_row(row, Vec::new()))
             .collect()

@@ -59,6 +59,9 @@ pub struct Config {
     /// Let requests without a token use the read-only (GET) endpoints; everything else still
     /// needs a token.
     pub open_read: bool,
+    /// Users read only their own batches and campaigns (and the jobs of their batches); worker
+    /// tokens read only the jobs of the workers they registered. Off: any token reads all.
+    pub private_reads: bool,
     /// `synchronous=FULL`: every acknowledged write survives a power loss (see the README's
     /// durability section); the default `NORMAL` survives a crash of the server process.
     pub durability_full: bool,
@@ -87,6 +90,7 @@ impl Config {
             body_limit_bytes: 8 * 1024 * 1024,
             max_claim_wait: Duration::from_secs(30),
             open_read: false,
+            private_reads: false,
             durability_full: false,
             max_db_pages: None,
             header_read_timeout: Duration::from_secs(30),

@@ -11,7 +11,7 @@ use axum::http::{header, StatusCode};
 use axum::middleware;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{on, MethodFilter, MethodRouter};
-use axum::{Json, Router};
+use axum::{Extension, Json, Router};
 use repose_api::{
     BatchCreated, BatchRequest, BatchState, CampaignBatch, CampaignCreated, CampaignDecision,
     CampaignSummary, CampaignView, ClaimRequest, Completion, Failure, Health, Heartbeat,
@@ -24,7 +24,7 @@ use tokio::time::Instant;
 use uuid::Uuid;
 
 use crate::auth::{authorize, Access, Caller};
-use crate::db::JobUpdate;
+use crate::db::{JobUpdate, ReadScope};
 use crate::error::AppError;
 use crate::{analysis, campaigns, submit, AppState};
 
@@ -240,6 +240,56 @@ fn parse_id(raw: &str, what: &str) -> Result<Uuid, AppError> {
         .map_err(|_| AppError::BadRequest(format!("invalid {what} id `{raw}`: expected a UUID")))
 }
 
+/// The authenticated reader of a GET, if any (anonymous with `--open-read`).
+type Reader = Option<Extension<Caller>>;
+
+/// What `reader` may see under the server's read policy.
+fn read_scope<'a>(state: &AppState, reader: &'a Reader) -> ReadScope<'a> {
+    match reader {
+        Some(Extension(caller)) if state.config.private_reads => match caller.role {
+            crate::TokenRole::User => ReadScope::User(&caller.name),
+            crate::TokenRole::Worker => ReadScope::Worker(&caller.name),
+        },
+        _ => ReadScope::All,
+    }
+}
+
+/// With private reads, a user reads only what it owns (403 otherwise).
+fn check_owner(
+    state: &AppState,
+    reader: &Reader,
+    owner: Option<&str>,
+    what: &str,
+) -> Result<(), AppError> {
+    match read_scope(state, reader) {
+        ReadScope::All => Ok(()),
+        ReadScope::User(name) if owner == Some(name) => Ok(()),
+        _ => Err(AppError::Forbidden(format!(
+            "{what} belongs to another user; this server keeps reads private"
+        ))),
+    }
+}
+
+/// [`check_owner`] for a batch, looked up by id (404 if it does not exist).
+async fn check_batch_owner(state: &AppState, reader: &Reader, id: Uuid) -> Result<(), AppError> {
+    if read_scope(state, reader) == ReadScope::All {
+        return Ok(());
+    }
+    let owner = state
+        .db
+        .batch_owner(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+    check_owner(state, reader, owner.as_deref(), &format!("batch {id}"))
+}
+
+fn owner_filter<'a>(state: &AppState, reader: &'a Reader) -> Option<&'a str> {
+    match read_scope(state, reader) {
+        ReadScope::User(name) => Some(name),
+        _ => None,
+    }
+}
+
 #[derive(Debug, Deserialize)]
 struct FormatQuery {
     format: Option<String>,
@@ -305,15 +355,21 @@ async fn create_batch(
     ))
 }
 
-async fn list_batches(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
-    Ok(Json(state.db.list_batches(BATCH_LIST_LIMIT).await?))
+async fn list_batches(
+    State(state): State<AppState>,
+    reader: Reader,
+) -> Result<impl IntoResponse, AppError> {
+    let owner = owner_filter(&state, &reader);
+    Ok(Json(state.db.list_batches(BATCH_LIST_LIMIT, owner).await?))
 }
 
 async fn batch_status(
     State(state): State<AppState>,
+    reader: Reader,
     Path(raw_id): Path<String>,
 ) -> Result<impl IntoResponse, AppError> {
     let id = parse_id(&raw_id, "batch")?;
+    check_batch_owner(&state, &reader, id).await?;
     let status = state
         .db
         .batch_status(id)
@@ -324,10 +380,12 @@ async fn batch_status(
 
 async fn batch_runs(
     State(state): State<AppState>,
+    reader: Reader,
     Path(raw_id): Path<String>,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
     let id = parse_id(&raw_id, "batch")?;
+    check_batch_owner(&state, &reader, id).await?;
     let (factor_names, runs) = state
         .db
         .list_runs(id)
@@ -374,10 +432,12 @@ async fn cancel_batch(
 
 async fn batch_analysis(
     State(state): State<AppState>,
+    reader: Reader,
     Path(raw_id): Path<String>,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
     let id = parse_id(&raw_id, "batch")?;
+    check_batch_owner(&state, &reader, id).await?;
     let view = match state.db.analysis(id).await? {
         Some(view) => view,
         None => {
@@ -484,6 +544,7 @@ struct JobsQuery {
 /// `?batch=<id>`, `?limit=` (default 100, at most 10 000).
 async fn list_jobs(
     State(state): State<AppState>,
+    reader: Reader,
     Query(query): Query<JobsQuery>,
 ) -> Result<impl IntoResponse, AppError> {
     let status = query
@@ -514,7 +575,8 @@ async fn list_jobs(
             "limit must be between 1 and {JOB_LIST_MAX}"
         )));
     }
-    Ok(Json(state.db.list_jobs(status, batch, limit).await?))
+    let scope = read_scope(&state, &reader);
+    Ok(Json(state.db.list_jobs(status, batch, limit, scope).await?))
 }
 
 async fn register_worker(
@@ -796,8 +858,12 @@ async fn create_campaign(
     ))
 }
 
-async fn list_campaigns(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
-    let records = state.db.list_campaigns(CAMPAIGN_LIST_LIMIT).await?;
+async fn list_campaigns(
+    State(state): State<AppState>,
+    reader: Reader,
+) -> Result<impl IntoResponse, AppError> {
+    let owner = owner_filter(&state, &reader);
+    let records = state.db.list_campaigns(CAMPAIGN_LIST_LIMIT, owner).await?;
     Ok(Json(
         records
             .iter()
@@ -820,6 +886,7 @@ fn campaign_summary(record: &crate::db::CampaignRecord) -> CampaignSummary {
 
 async fn campaign_status(
     State(state): State<AppState>,
+    reader: Reader,
     Path(raw_id): Path<String>,
 ) -> Result<impl IntoResponse, AppError> {
     let id = parse_id(&raw_id, "campaign")?;
@@ -828,6 +895,12 @@ async fn campaign_status(
         .campaign(id)
         .await?
         .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    check_owner(
+        &state,
+        &reader,
+        record.owner.as_deref(),
+        &format!("campaign {id}"),
+    )?;
     let campaign = campaigns::decode(&record)?;
     let mut batch_list = Vec::new();
     for (index, batch_id) in record.batch_ids.iter().enumerate() {
@@ -878,6 +951,7 @@ async fn campaign_status(
 /// The campaign report: a self-contained HTML page, or `?format=json`.
 async fn campaign_report(
     State(state): State<AppState>,
+    reader: Reader,
     Path(raw_id): Path<String>,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
@@ -887,6 +961,12 @@ async fn campaign_report(
         .campaign(id)
         .await?
         .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    check_owner(
+        &state,
+        &reader,
+        record.owner.as_deref(),
+        &format!("campaign {id}"),
+    )?;
     let campaign = campaigns::decode(&record)?;
     let results = campaigns::stage_results(&state, &record).await?;
     let pictures = campaigns::report_pictures(&state, &campaign, &record).await?;
