@@ -234,7 +234,34 @@ where
     }
 }
 
-/// Parses an id from the path; a malformed one is the client's mistake (400), not ours.
+/// The `{id}` of a path, as a UUID: the one place path ids are parsed (axum's
+/// `customize-path-rejection` pattern). A malformed id is the client's mistake, a 400 naming
+/// what kind of id it should have been (`invalid batch id `x``), in the server's error format.
+#[derive(Debug, Clone, Copy)]
+struct PathId(Uuid);
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for PathId {
+    type Rejection = AppError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        state: &S,
+    ) -> Result<Self, AppError> {
+        // `/v1/batches/{id}/…` holds a batch id, `/v1/jobs/{id}/…` a job id, and so on.
+        let what = match parts.uri.path().split('/').nth(2) {
+            Some("batches") => "batch",
+            Some("jobs") => "job",
+            Some("campaigns") => "campaign",
+            _ => "path",
+        };
+        let Path(raw) = Path::<String>::from_request_parts(parts, state)
+            .await
+            .map_err(|rejection| AppError::BadRequest(rejection.body_text()))?;
+        parse_id(&raw, what).map(PathId)
+    }
+}
+
+/// Parses an id; a malformed one is the client's mistake (400), not ours.
 fn parse_id(raw: &str, what: &str) -> Result<Uuid, AppError> {
     Uuid::parse_str(raw)
         .map_err(|_| AppError::BadRequest(format!("invalid {what} id `{raw}`: expected a UUID")))
@@ -366,9 +393,8 @@ async fn list_batches(
 async fn batch_status(
     State(state): State<AppState>,
     reader: Reader,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
     check_batch_owner(&state, &reader, id).await?;
     let status = state
         .db
@@ -381,10 +407,9 @@ async fn batch_status(
 async fn batch_runs(
     State(state): State<AppState>,
     reader: Reader,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
     check_batch_owner(&state, &reader, id).await?;
     let (factor_names, runs) = state
         .db
@@ -407,9 +432,8 @@ async fn batch_runs(
 async fn cancel_batch(
     State(state): State<AppState>,
     caller: Caller,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
     match state.db.cancel_batch(id, &caller.name).await? {
         None => Err(AppError::NotFound(format!("batch {id} not found"))),
         Some(BatchState::Completed) => {
@@ -433,10 +457,9 @@ async fn cancel_batch(
 async fn batch_analysis(
     State(state): State<AppState>,
     reader: Reader,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
     check_batch_owner(&state, &reader, id).await?;
     let view = match state.db.analysis(id).await? {
         Some(view) => view,
@@ -654,10 +677,9 @@ async fn claim_job(
 
 async fn heartbeat(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(beat): ValidJson<Heartbeat>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
     if !beat.progress.is_finite() {
         return Err(AppError::invalid("progress", "must be a number in 0..1"));
     }
@@ -673,10 +695,9 @@ async fn heartbeat(
 
 async fn complete_job(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(completion): ValidJson<Completion>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
     check_completion_sizes(&completion)?;
     let update = state
         .db
@@ -688,10 +709,9 @@ async fn complete_job(
 
 async fn fail_job(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(failure): ValidJson<Failure>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
     if failure.error.len() > MAX_ERROR_BYTES {
         return Err(AppError::invalid(
             "error",
@@ -720,10 +740,9 @@ async fn fail_job(
 
 async fn release_job(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(release): ValidJson<Release>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
     let update = state.db.release(job_id, release.lease_token).await?;
     state.metrics.released();
     Ok(after_update(&state, job_id, update))
@@ -887,9 +906,8 @@ fn campaign_summary(record: &crate::db::CampaignRecord) -> CampaignSummary {
 async fn campaign_status(
     State(state): State<AppState>,
     reader: Reader,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let id = parse_id(&raw_id, "campaign")?;
     let record = state
         .db
         .campaign(id)
@@ -952,10 +970,9 @@ async fn campaign_status(
 async fn campaign_report(
     State(state): State<AppState>,
     reader: Reader,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let id = parse_id(&raw_id, "campaign")?;
     let record = state
         .db
         .campaign(id)
