@@ -30,6 +30,7 @@ mod campaigns;
 mod db;
 mod error;
 mod metrics;
+mod orchestrate;
 mod routes;
 mod submit;
 pub mod tokens;
@@ -195,7 +196,7 @@ pub async fn serve(
     // Campaigns whose batch finished while the server was down continue now.
     let resuming = state.clone();
     tokio::spawn(async move { campaigns::resume_all(&resuming).await });
-    let reclaimer = tokio::spawn(routes::reclaim_expired_leases(state.clone()));
+    let reclaimer = tokio::spawn(orchestrate::reclaim_expired_leases(state.clone()));
 
     let router = app(state.clone());
     let mut builder = Builder::new(TokioExecutor::new());

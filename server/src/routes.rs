@@ -15,8 +15,7 @@ use axum::{Extension, Json, Router};
 use repose_api::{
     BatchCreated, BatchRequest, BatchState, CampaignBatch, CampaignCreated, CampaignDecision,
     CampaignSummary, CampaignView, ClaimRequest, Completion, Failure, Health, Heartbeat,
-    HeartbeatResponse, JobUpdateResponse, Release, RunState, RunView, WorkerRegistered,
-    WorkerRegistration,
+    HeartbeatResponse, Release, RunState, RunView, WorkerRegistered, WorkerRegistration,
 };
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
@@ -24,9 +23,9 @@ use tokio::time::Instant;
 use uuid::Uuid;
 
 use crate::auth::{authorize, Access, Caller};
-use crate::db::{JobUpdate, ReadScope};
+use crate::db::ReadScope;
 use crate::error::AppError;
-use crate::{analysis, campaigns, submit, AppState};
+use crate::{analysis, campaigns, orchestrate, submit, AppState};
 
 /// How often a waiting claim re-checks the queue even without a notification, so retry
 /// back-offs and expired leases are picked up without a background task.
@@ -371,7 +370,7 @@ async fn create_batch(
         .await
         .map_err(|err| AppError::Internal(format!("planning task: {err}")))??;
     let id = state.db.insert_batch(&plan, &caller.name).await?;
-    state.jobs_available.notify_waiters();
+    orchestrate::jobs_available(&state);
     tracing::info!(batch = %id, runs = plan.runs.len(), "batch submitted");
     Ok((
         StatusCode::CREATED,
@@ -445,10 +444,7 @@ async fn cancel_batch(
                 .batch_status(id)
                 .await?
                 .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
-            // A campaign waiting on this batch stops and says why.
-            if let Err(err) = campaigns::advance_after_batch(&state, id).await {
-                tracing::error!(batch = %id, error = %err, "campaign could not record the cancel");
-            }
+            orchestrate::batch_cancelled(&state, id).await;
             Ok(Json(status))
         }
     }
@@ -471,7 +467,9 @@ async fn batch_analysis(
                 .await?
                 .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
             match input.state {
-                BatchState::Completed => compute_and_store_analysis(&state, id).await?,
+                BatchState::Completed => {
+                    orchestrate::compute_and_store_analysis(&state, id).await?
+                }
                 BatchState::Active => {
                     return Err(AppError::Conflict(format!(
                         "batch {id} is still running; the analysis is computed when its last \
@@ -496,59 +494,6 @@ async fn batch_analysis(
         Some(other) => Err(AppError::BadRequest(format!(
             "unknown format `{other}` (expected json or text)"
         ))),
-    }
-}
-
-/// Fits the batch and stores the result unless another task already did.
-async fn compute_and_store_analysis(
-    state: &AppState,
-    batch_id: Uuid,
-) -> Result<repose_api::AnalysisView, AppError> {
-    let input = state
-        .db
-        .analysis_input(batch_id)
-        .await?
-        .ok_or_else(|| AppError::NotFound(format!("batch {batch_id} not found")))?;
-    let view = tokio::task::spawn_blocking(move || analysis::analyse(&input))
-        .await
-        .map_err(|err| AppError::Internal(format!("analysis task: {err}")))?;
-    state.db.store_analysis(&view).await
-}
-
-/// Runs the analysis of freshly finished batches in the background so the worker that
-/// delivered the last result is answered at once.
-fn analyse_in_background(state: &AppState, batches: Vec<Uuid>) {
-    for batch_id in batches {
-        let state = state.clone();
-        tokio::spawn(async move {
-            match compute_and_store_analysis(&state, batch_id).await {
-                Ok(view) => {
-                    tracing::info!(batch = %batch_id, error = ?view.error, "batch analysed")
-                }
-                Err(err) => tracing::error!(batch = %batch_id, error = %err, "analysis failed"),
-            }
-            // A campaign's next stage is generated from this batch.
-            if let Err(err) = campaigns::advance_after_batch(&state, batch_id).await {
-                tracing::error!(batch = %batch_id, error = %err, "campaign could not advance");
-            }
-        });
-    }
-}
-
-/// Returns expired leases to the queue every [`crate::Config::reclaim_interval`], so a job
-/// whose worker vanished is claimable (or dead, finishing its batch) even when no worker polls.
-pub(crate) async fn reclaim_expired_leases(state: AppState) {
-    let mut ticks = tokio::time::interval(state.config.reclaim_interval);
-    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    loop {
-        ticks.tick().await;
-        match state.db.reclaim_expired(state.config.max_attempts).await {
-            Ok(finished) => {
-                state.jobs_available.notify_waiters();
-                analyse_in_background(&state, finished);
-            }
-            Err(err) => tracing::warn!(error = %err, "reclaiming expired leases failed"),
-        }
     }
 }
 
@@ -655,7 +600,7 @@ async fn claim_job(
                 state.config.max_attempts,
             )
             .await?;
-        analyse_in_background(&state, finished);
+        orchestrate::batches_finished(&state, finished);
         if let Some(job) = claimed {
             state.metrics.claimed(started.elapsed());
             tracing::debug!(job = %job.job_id, worker = %request.worker_id, "job leased");
@@ -704,7 +649,7 @@ async fn complete_job(
         .complete(job_id, completion.lease_token, &completion)
         .await?;
     state.metrics.completed();
-    Ok(after_update(&state, job_id, update))
+    Ok(orchestrate::job_updated(&state, job_id, update))
 }
 
 async fn fail_job(
@@ -735,7 +680,7 @@ async fn fail_job(
         .await?;
     state.metrics.failed();
     tracing::warn!(job = %job_id, error = %failure.error, status = ?update.status, "job failed");
-    Ok(after_update(&state, job_id, update))
+    Ok(orchestrate::job_updated(&state, job_id, update))
 }
 
 async fn release_job(
@@ -745,7 +690,7 @@ async fn release_job(
 ) -> Result<impl IntoResponse, AppError> {
     let update = state.db.release(job_id, release.lease_token).await?;
     state.metrics.released();
-    Ok(after_update(&state, job_id, update))
+    Ok(orchestrate::job_updated(&state, job_id, update))
 }
 
 /// Bounds every free-form part of a result, naming the field that is too large.
@@ -779,20 +724,6 @@ fn check_completion_sizes(completion: &Completion) -> Result<(), AppError> {
         }
     }
     Ok(())
-}
-
-/// Wakes waiting claims and starts the analysis as the update requires.
-fn after_update(state: &AppState, job_id: Uuid, update: JobUpdate) -> Json<JobUpdateResponse> {
-    if update.requeued {
-        state.jobs_available.notify_waiters();
-    }
-    if update.batch_finished {
-        tracing::info!(job = %job_id, "last run of a batch finished");
-        analyse_in_background(state, vec![update.batch_id]);
-    }
-    Json(JobUpdateResponse {
-        status: update.status,
-    })
 }
 
 /// The run table as CSV: one column per factor (natural units), per metric and the bookkeeping.
