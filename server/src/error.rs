@@ -69,16 +69,6 @@ impl AppError {
     }
 }
 
-impl AppError {
-    /// A failure on the server's side (database, bug), as opposed to a refusal of the request.
-    pub fn is_server_fault(&self) -> bool {
-        matches!(
-            self,
-            AppError::Database(_) | AppError::Internal(_) | AppError::Unavailable(_)
-        )
-    }
-}
-
 /// Whether a database error is the storage's condition (full, I/O, locked, no connection),
 /// which a client may retry later, rather than a bug.
 fn is_storage_condition(err: &sqlx::Error) -> bool {
@@ -94,6 +84,25 @@ fn is_storage_condition(err: &sqlx::Error) -> bool {
         }
         sqlx::Error::Io(_) | sqlx::Error::PoolTimedOut | sqlx::Error::PoolClosed => true,
         _ => false,
+    }
+}
+
+impl From<crate::db::DbError> for AppError {
+    /// The storage layer's failures and refusals, as HTTP: the one place they are mapped.
+    fn from(err: crate::db::DbError) -> Self {
+        use crate::db::DbError;
+        match err {
+            DbError::NotFound(message) => AppError::NotFound(message),
+            DbError::Conflict(message) => AppError::Conflict(message),
+            DbError::Forbidden(message) => AppError::Forbidden(message),
+            DbError::Invalid { field, message } => AppError::Invalid {
+                field: Some(field),
+                message,
+            },
+            DbError::Unavailable(message) => AppError::Unavailable(message),
+            DbError::Sqlx(err) => AppError::Database(err),
+            DbError::Corrupt(message) => AppError::Internal(message),
+        }
     }
 }
 

@@ -51,7 +51,7 @@ pub async fn compute_and_store_analysis(
     let view = tokio::task::spawn_blocking(move || analysis::analyse(&input))
         .await
         .map_err(|err| AppError::Internal(format!("analysis task: {err}")))?;
-    state.db.store_analysis(&view).await
+    Ok(state.db.store_analysis(&view).await?)
 }
 
 /// Runs the analysis of freshly finished batches in the background so the worker that

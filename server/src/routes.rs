@@ -325,7 +325,7 @@ struct FormatQuery {
 /// (and while the last real write failed for a storage reason such as a full disk).
 async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError> {
     state.db.ping().await.map_err(|err| match err {
-        AppError::Unavailable(_) => err,
+        crate::db::DbError::Unavailable(message) => AppError::Unavailable(message),
         other => {
             tracing::warn!(error = %other, "health check failed");
             AppError::Unavailable("the database is not writable".into())

@@ -27,7 +27,7 @@ pub struct AnalysisInput {
 
 impl Db {
     /// The inputs of a batch's analysis, or `None` if the batch does not exist.
-    pub async fn analysis_input(&self, batch_id: Uuid) -> Result<Option<AnalysisInput>, AppError> {
+    pub async fn analysis_input(&self, batch_id: Uuid) -> Result<Option<AnalysisInput>, DbError> {
         let Some(batch) = sqlx::query(
             "SELECT state, factors, design_kind, response, model, target, base_seed
              FROM batches WHERE id = ?",
@@ -48,14 +48,14 @@ impl Db {
         let completed = rows
             .iter()
             .map(
-                |row| -> Result<(Vec<f64>, BTreeMap<String, f64>), AppError> {
+                |row| -> Result<(Vec<f64>, BTreeMap<String, f64>), DbError> {
                     let coded: Vec<f64> = serde_json::from_str(row.try_get("coded")?)?;
                     let metrics: BTreeMap<String, f64> =
                         serde_json::from_str(row.try_get("metrics")?)?;
                     Ok((coded, metrics))
                 },
             )
-            .collect::<Result<Vec<_>, AppError>>()?;
+            .collect::<Result<Vec<_>, DbError>>()?;
         Ok(Some(AnalysisInput {
             batch_id,
             state: batch_state_from_db(batch.try_get("state")?)?,
@@ -70,7 +70,7 @@ impl Db {
     }
 
     /// The stored analysis of a batch, if computed.
-    pub async fn analysis(&self, batch_id: Uuid) -> Result<Option<AnalysisView>, AppError> {
+    pub async fn analysis(&self, batch_id: Uuid) -> Result<Option<AnalysisView>, DbError> {
         let stored: Option<String> =
             sqlx::query_scalar("SELECT result FROM analyses WHERE batch_id = ?")
                 .bind(batch_id.to_string())
@@ -81,9 +81,9 @@ impl Db {
 
     /// Stores an analysis unless one exists, and returns the stored one: whoever computed
     /// first wins, so every reader sees the same result.
-    pub async fn store_analysis(&self, analysis: &AnalysisView) -> Result<AnalysisView, AppError> {
+    pub async fn store_analysis(&self, analysis: &AnalysisView) -> Result<AnalysisView, DbError> {
         let mut tx = self.begin_write().await?;
-        let result: Result<AnalysisView, AppError> = async {
+        let result: Result<AnalysisView, DbError> = async {
             sqlx::query(
                 "INSERT INTO analyses (batch_id, computed_at, result) VALUES (?, ?, ?)
                  ON CONFLICT (batch_id) DO NOTHING",

@@ -4,9 +4,9 @@ use super::*;
 
 impl Db {
     /// Stores a validated batch with one run and one queued job per planned run.
-    pub async fn insert_batch(&self, plan: &PlannedBatch, owner: &str) -> Result<Uuid, AppError> {
+    pub async fn insert_batch(&self, plan: &PlannedBatch, owner: &str) -> Result<Uuid, DbError> {
         let mut tx = self.begin_write().await?;
-        let result: Result<Uuid, AppError> = async {
+        let result: Result<Uuid, DbError> = async {
             let batch_id = insert_batch_tx(&mut tx, plan, owner).await?;
             Ok(batch_id)
         }
@@ -20,7 +20,7 @@ impl Db {
         &self,
         limit: u32,
         owner: Option<&str>,
-    ) -> Result<Vec<BatchSummary>, AppError> {
+    ) -> Result<Vec<BatchSummary>, DbError> {
         let rows = sqlx::query(&format!(
             "{SUMMARY_SELECT} WHERE (?1 IS NULL OR b.owner = ?1)
              GROUP BY b.id ORDER BY b.created_at DESC, b.rowid DESC LIMIT ?2"
@@ -33,7 +33,7 @@ impl Db {
     }
 
     /// Progress of one batch, or `None` if it does not exist.
-    pub async fn batch_status(&self, batch_id: Uuid) -> Result<Option<BatchStatus>, AppError> {
+    pub async fn batch_status(&self, batch_id: Uuid) -> Result<Option<BatchStatus>, DbError> {
         let Some(row) = sqlx::query(&format!("{SUMMARY_SELECT} WHERE b.id = ? GROUP BY b.id"))
             .bind(batch_id.to_string())
             .fetch_optional(&self.reader)
@@ -77,7 +77,7 @@ impl Db {
         batch_id: Uuid,
         stored_spec: &str,
         natural: &str,
-    ) -> Result<Value, AppError> {
+    ) -> Result<Value, DbError> {
         if !stored_spec.is_empty() {
             return Ok(serde_json::from_str(stored_spec)?);
         }
@@ -91,11 +91,11 @@ impl Db {
                 .map(String::as_str)
                 .zip(natural.iter().copied()),
         )
-        .map_err(|err| AppError::Internal(format!("stored run spec of batch {batch_id}: {err}")))
+        .map_err(|err| DbError::Corrupt(format!("stored run spec of batch {batch_id}: {err}")))
     }
 
     /// The template of a batch, from the cache or the database.
-    pub(super) async fn template(&self, batch_id: Uuid) -> Result<Arc<RunTemplate>, AppError> {
+    pub(super) async fn template(&self, batch_id: Uuid) -> Result<Arc<RunTemplate>, DbError> {
         if let Some(found) = self
             .templates
             .lock()
@@ -110,7 +110,7 @@ impl Db {
             .await?;
         let template: Option<String> = row.try_get("template")?;
         let template = template.ok_or_else(|| {
-            AppError::Internal(format!(
+            DbError::Corrupt(format!(
                 "batch {batch_id} has neither run specs nor a template"
             ))
         })?;
@@ -132,7 +132,7 @@ impl Db {
     pub async fn list_runs(
         &self,
         batch_id: Uuid,
-    ) -> Result<Option<(Vec<String>, Vec<RunView>)>, AppError> {
+    ) -> Result<Option<(Vec<String>, Vec<RunView>)>, DbError> {
         let Some(batch) = sqlx::query("SELECT factors FROM batches WHERE id = ?")
             .bind(batch_id.to_string())
             .fetch_optional(&self.reader)
@@ -168,10 +168,10 @@ impl Db {
         let runs = rows
             .iter()
             .enumerate()
-            .map(|(index, row)| -> Result<RunView, AppError> {
+            .map(|(index, row)| -> Result<RunView, DbError> {
                 // Lenient: batches stored before non-finite values were refused hold `null`s
                 // here; they read back as NaN (`null` in JSON) instead of failing the request.
-                let lenient = |column: &str| -> Result<Vec<f64>, AppError> {
+                let lenient = |column: &str| -> Result<Vec<f64>, DbError> {
                     let values: Vec<Option<f64>> = serde_json::from_str(row.try_get(column)?)?;
                     Ok(values.into_iter().map(|v| v.unwrap_or(f64::NAN)).collect())
                 };
@@ -205,7 +205,7 @@ impl Db {
                     engine_version: row.try_get("engine_version")?,
                 })
             })
-            .collect::<Result<Vec<_>, AppError>>()?;
+            .collect::<Result<Vec<_>, DbError>>()?;
         Ok(Some((names, runs)))
     }
 
@@ -214,7 +214,7 @@ impl Db {
     pub async fn first_run_pictures(
         &self,
         batch_id: Uuid,
-    ) -> Result<BTreeMap<String, String>, AppError> {
+    ) -> Result<BTreeMap<String, String>, DbError> {
         let pictures: Option<String> = sqlx::query_scalar(
             "SELECT pictures FROM runs WHERE batch_id = ? AND pictures IS NOT NULL
              ORDER BY run_index LIMIT 1",
@@ -230,12 +230,12 @@ impl Db {
 
     /// Cancels an active batch on behalf of the user token `caller`: its unfinished jobs will
     /// not run. Returns the state afterwards, or `None` if the batch does not exist. Completed
-    /// batches are left alone; a batch owned by another token is [`AppError::Forbidden`].
+    /// batches are left alone; a batch owned by another token is [`DbError::Forbidden`].
     pub async fn cancel_batch(
         &self,
         batch_id: Uuid,
         caller: &str,
-    ) -> Result<Option<BatchState>, AppError> {
+    ) -> Result<Option<BatchState>, DbError> {
         let mut tx = self.begin_write().await?;
         let result = cancel_batch_in(&mut tx, batch_id, caller).await;
         tx.finish(result).await
@@ -245,7 +245,7 @@ impl Db {
 /// The owner of a batch: `None` if it does not exist, `Some(None)` if it has none (from before
 /// access control).
 impl Db {
-    pub async fn batch_owner(&self, batch_id: Uuid) -> Result<Option<Option<String>>, AppError> {
+    pub async fn batch_owner(&self, batch_id: Uuid) -> Result<Option<Option<String>>, DbError> {
         let owner: Option<Option<String>> =
             sqlx::query_scalar("SELECT owner FROM batches WHERE id = ?")
                 .bind(batch_id.to_string())
@@ -260,7 +260,7 @@ pub(super) async fn insert_batch_tx(
     tx: &mut WriteTx,
     plan: &PlannedBatch,
     owner: &str,
-) -> Result<Uuid, AppError> {
+) -> Result<Uuid, DbError> {
     let batch_id = Uuid::new_v4();
     let now = now_ms();
     let request = &plan.request;
@@ -340,7 +340,7 @@ pub(super) async fn finish_batch_if_done(
     tx: &mut WriteTx,
     batch_id: &str,
     now: i64,
-) -> Result<bool, AppError> {
+) -> Result<bool, DbError> {
     let done = sqlx::query(
         "UPDATE batches SET state = 'completed', finished_at = ?
          WHERE id = ? AND state = 'active'
@@ -364,8 +364,8 @@ pub(super) const SUMMARY_SELECT: &str =
         COALESCE(SUM(j.state = 'cancelled'), 0) AS cancelled
     FROM batches b LEFT JOIN jobs j ON j.batch_id = b.id";
 
-pub(super) fn summary_from_row(row: &SqliteRow) -> Result<BatchSummary, AppError> {
-    let count = |name: &str| -> Result<u64, AppError> { Ok(row.try_get::<i64, _>(name)? as u64) };
+pub(super) fn summary_from_row(row: &SqliteRow) -> Result<BatchSummary, DbError> {
+    let count = |name: &str| -> Result<u64, DbError> { Ok(row.try_get::<i64, _>(name)? as u64) };
     let counts = StateCounts {
         queued: count("queued")?,
         running: count("running")?,
@@ -394,7 +394,7 @@ pub(super) async fn cancel_batch_in(
     tx: &mut WriteTx,
     batch_id: Uuid,
     caller: &str,
-) -> Result<Option<BatchState>, AppError> {
+) -> Result<Option<BatchState>, DbError> {
     let now = now_ms();
     let id = batch_id.to_string();
     let Some(row) = sqlx::query("SELECT state, owner FROM batches WHERE id = ?")
@@ -406,7 +406,7 @@ pub(super) async fn cancel_batch_in(
     };
     let owner: Option<String> = row.try_get("owner")?;
     if let Some(owner) = owner.filter(|owner| owner != caller) {
-        return Err(AppError::Forbidden(format!(
+        return Err(DbError::Forbidden(format!(
             "batch {batch_id} belongs to `{owner}`; only its owner may cancel it"
         )));
     }

@@ -38,13 +38,13 @@ impl Db {
         name: &str,
         owner: &str,
         update: CampaignUpdate<'_>,
-    ) -> Result<Uuid, AppError> {
+    ) -> Result<Uuid, DbError> {
         let now = now_ms();
         let first = update
             .next
-            .ok_or_else(|| AppError::Internal("a campaign starts with a batch".into()))?;
+            .ok_or_else(|| DbError::Corrupt("a campaign starts with a batch".into()))?;
         let mut tx = self.begin_write().await?;
-        let result: Result<Uuid, AppError> = async {
+        let result: Result<Uuid, DbError> = async {
             sqlx::query(
                 "INSERT INTO campaigns (id, name, owner, status, stage, state, batches_issued,
                                         created_at, updated_at)
@@ -76,10 +76,10 @@ impl Db {
         issued_before: i64,
         owner: Option<&str>,
         update: CampaignUpdate<'_>,
-    ) -> Result<Option<Option<Uuid>>, AppError> {
+    ) -> Result<Option<Option<Uuid>>, DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
-        let result: Result<Option<Option<Uuid>>, AppError> = async {
+        let result: Result<Option<Option<Uuid>>, DbError> = async {
             let issued_after = issued_before + i64::from(update.next.is_some());
             let changed = sqlx::query(
                 "UPDATE campaigns SET status = ?, stage = ?, state = ?, batches_issued = ?,
@@ -114,7 +114,7 @@ impl Db {
     }
 
     /// The campaign a batch belongs to and the batch's position in it.
-    pub async fn campaign_of_batch(&self, batch_id: Uuid) -> Result<Option<(Uuid, i64)>, AppError> {
+    pub async fn campaign_of_batch(&self, batch_id: Uuid) -> Result<Option<(Uuid, i64)>, DbError> {
         let row = sqlx::query(
             "SELECT campaign_id, campaign_index FROM batches
              WHERE id = ? AND campaign_id IS NOT NULL",
@@ -122,7 +122,7 @@ impl Db {
         .bind(batch_id.to_string())
         .fetch_optional(&self.reader)
         .await?;
-        row.map(|row| -> Result<(Uuid, i64), AppError> {
+        row.map(|row| -> Result<(Uuid, i64), DbError> {
             Ok((
                 parse_uuid(&row.try_get::<String, _>("campaign_id")?)?,
                 row.try_get("campaign_index")?,
@@ -132,7 +132,7 @@ impl Db {
     }
 
     /// One campaign with its batch ids.
-    pub async fn campaign(&self, id: Uuid) -> Result<Option<CampaignRecord>, AppError> {
+    pub async fn campaign(&self, id: Uuid) -> Result<Option<CampaignRecord>, DbError> {
         let Some(row) = sqlx::query("SELECT * FROM campaigns WHERE id = ?")
             .bind(id.to_string())
             .fetch_optional(&self.reader)
@@ -148,7 +148,7 @@ impl Db {
         let batch_ids = batch_rows
             .iter()
             .map(|r| parse_uuid(&r.try_get::<String, _>("id")?))
-            .collect::<Result<Vec<_>, AppError>>()?;
+            .collect::<Result<Vec<_>, DbError>>()?;
         Ok(Some(campaign_from_row(&row, batch_ids)?))
     }
 
@@ -157,7 +157,7 @@ impl Db {
         &self,
         limit: u32,
         owner: Option<&str>,
-    ) -> Result<Vec<CampaignRecord>, AppError> {
+    ) -> Result<Vec<CampaignRecord>, DbError> {
         let rows = sqlx::query(
             "SELECT * FROM campaigns WHERE (?1 IS NULL OR owner = ?1)
              ORDER BY created_at DESC LIMIT ?2",
@@ -172,7 +172,7 @@ impl Db {
     }
 
     /// Ids of the campaigns still running (resumed at start-up).
-    pub async fn running_campaigns(&self) -> Result<Vec<Uuid>, AppError> {
+    pub async fn running_campaigns(&self) -> Result<Vec<Uuid>, DbError> {
         let rows = sqlx::query("SELECT id FROM campaigns WHERE status = 'running'")
             .fetch_all(&self.reader)
             .await?;
@@ -187,7 +187,7 @@ pub(super) async fn link_batch(
     batch_id: Uuid,
     campaign_id: Uuid,
     index: i64,
-) -> Result<(), AppError> {
+) -> Result<(), DbError> {
     sqlx::query("UPDATE batches SET campaign_id = ?, campaign_index = ? WHERE id = ?")
         .bind(campaign_id.to_string())
         .bind(index)
@@ -200,7 +200,7 @@ pub(super) async fn link_batch(
 pub(super) fn campaign_from_row(
     row: &SqliteRow,
     batch_ids: Vec<Uuid>,
-) -> Result<CampaignRecord, AppError> {
+) -> Result<CampaignRecord, DbError> {
     Ok(CampaignRecord {
         id: parse_uuid(&row.try_get::<String, _>("id")?)?,
         name: row.try_get("name")?,

@@ -26,9 +26,9 @@ pub struct HeartbeatOutcome {
 
 /// The lease named by a worker, looked up together with its job and run.
 pub(super) struct LeaseLookup {
-    outcome: Option<String>,
+    outcome: Option<LeaseOutcome>,
     worker_id: String,
-    job_state: String,
+    job_state: JobState,
     current_token: Option<String>,
     attempts: i64,
     run_id: String,
@@ -41,13 +41,13 @@ pub(super) struct LeaseLookup {
 
 impl Db {
     /// Records (or refreshes) a worker on behalf of the worker token `token`. A worker id
-    /// registered by another token is [`AppError::Forbidden`]: worker rows belong to the token
+    /// registered by another token is [`DbError::Forbidden`]: worker rows belong to the token
     /// that made them.
     pub async fn register_worker(
         &self,
         worker: &WorkerRegistration,
         token: &str,
-    ) -> Result<(), AppError> {
+    ) -> Result<(), DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
         let result = async {
@@ -71,7 +71,7 @@ impl Db {
             .await?
             .rows_affected();
             if changed == 0 {
-                return Err(AppError::Forbidden(format!(
+                return Err(DbError::Forbidden(format!(
                     "worker {} was registered by another token",
                     worker.instance_id
                 )));
@@ -91,10 +91,10 @@ impl Db {
         caller: &str,
         lease: Duration,
         max_attempts: u32,
-    ) -> Result<(Option<ClaimResponse>, Vec<Uuid>), AppError> {
+    ) -> Result<(Option<ClaimResponse>, Vec<Uuid>), DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
-        let result: Result<(Option<ClaimResponse>, Vec<Uuid>), AppError> = async {
+        let result: Result<(Option<ClaimResponse>, Vec<Uuid>), DbError> = async {
             let seen_recently = self
                 .seen_workers
                 .lock()
@@ -115,7 +115,7 @@ impl Db {
                         .rows_affected()
                         == 1;
                 if !worker_known {
-                    return Err(AppError::invalid(
+                    return Err(DbError::invalid(
                         "worker_id",
                         format!(
                             "worker {worker_id} is not registered with this token; \
@@ -213,7 +213,7 @@ impl Db {
     /// Returns expired leases to the queue (or marks their jobs dead after `max_attempts`);
     /// the server calls this on a timer so an expired job does not wait for a claim. Returns
     /// the batches this finished.
-    pub async fn reclaim_expired(&self, max_attempts: u32) -> Result<Vec<Uuid>, AppError> {
+    pub async fn reclaim_expired(&self, max_attempts: u32) -> Result<Vec<Uuid>, DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
         let result = expire_leases(&mut tx, now, max_attempts).await;
@@ -229,7 +229,7 @@ impl Db {
         token: Uuid,
         progress: f64,
         lease: Duration,
-    ) -> Result<HeartbeatOutcome, AppError> {
+    ) -> Result<HeartbeatOutcome, DbError> {
         let mut tx = self.begin_write().await?;
         let result = heartbeat_in(&mut tx, job_id, token, progress, lease).await;
         tx.finish(result).await
@@ -243,7 +243,7 @@ impl Db {
         job_id: Uuid,
         token: Uuid,
         completion: &Completion,
-    ) -> Result<JobUpdate, AppError> {
+    ) -> Result<JobUpdate, DbError> {
         let mut tx = self.begin_write().await?;
         let result = complete_in(&mut tx, job_id, token, completion).await;
         tx.finish(result).await
@@ -258,21 +258,21 @@ impl Db {
         error: &str,
         max_attempts: u32,
         backoff: Duration,
-    ) -> Result<JobUpdate, AppError> {
+    ) -> Result<JobUpdate, DbError> {
         let mut tx = self.begin_write().await?;
         let result = fail_in(&mut tx, job_id, token, error, max_attempts, backoff).await;
         tx.finish(result).await
     }
 
     /// Gives a job back to the queue at once without counting the attempt.
-    pub async fn release(&self, job_id: Uuid, token: Uuid) -> Result<JobUpdate, AppError> {
+    pub async fn release(&self, job_id: Uuid, token: Uuid) -> Result<JobUpdate, DbError> {
         let mut tx = self.begin_write().await?;
         let result = release_in(&mut tx, job_id, token).await;
         tx.finish(result).await
     }
 
     /// Registered workers, most recently seen first, with the number of leases each holds.
-    pub async fn list_workers(&self, limit: u32) -> Result<Vec<WorkerView>, AppError> {
+    pub async fn list_workers(&self, limit: u32) -> Result<Vec<WorkerView>, DbError> {
         let rows = sqlx::query(
             "SELECT w.id, w.host, w.threads, w.version, w.registered_at, w.last_seen_at,
                     (SELECT COUNT(*) FROM jobs j
@@ -305,7 +305,7 @@ impl Db {
         batch_id: Option<Uuid>,
         limit: u32,
         scope: ReadScope<'_>,
-    ) -> Result<Vec<JobView>, AppError> {
+    ) -> Result<Vec<JobView>, DbError> {
         let (owner, worker_token) = match scope {
             ReadScope::All => (None, None),
             ReadScope::User(name) => (Some(name), None),
@@ -320,7 +320,7 @@ impl Db {
                AND (?5 IS NULL OR j.worker_id IN (SELECT id FROM workers WHERE token = ?5))
              ORDER BY j.updated_at DESC, j.rowid DESC LIMIT ?3",
         )
-        .bind(status.map(job_state_to_db))
+        .bind(status.map(|state| JobState::from(state).as_db()))
         .bind(batch_id.map(|id| id.to_string()))
         .bind(i64::from(limit))
         .bind(owner)
@@ -350,12 +350,12 @@ impl Db {
 
     /// The database-derived gauges of `GET /metrics`; workers count as active when seen
     /// within `lease`.
-    pub async fn gauges(&self, lease: Duration) -> Result<Gauges, AppError> {
+    pub async fn gauges(&self, lease: Duration) -> Result<Gauges, DbError> {
         let count_by = |sql: &'static str| async move {
             let rows = sqlx::query(sql).fetch_all(&self.reader).await?;
             rows.iter()
                 .map(|row| Ok((row.try_get::<String, _>(0)?, row.try_get::<i64, _>(1)?)))
-                .collect::<Result<Vec<_>, AppError>>()
+                .collect::<Result<Vec<_>, DbError>>()
         };
         let mut jobs = count_by("SELECT state, COUNT(*) FROM jobs GROUP BY state").await?;
         let mut batches = count_by("SELECT state, COUNT(*) FROM batches GROUP BY state").await?;
@@ -392,26 +392,26 @@ impl Db {
 
 impl LeaseLookup {
     fn is_current(&self, token: Uuid) -> bool {
-        self.job_state == "leased"
+        self.job_state == JobState::Leased
             && self.outcome.is_none()
             && self.current_token.as_deref() == Some(token.to_string().as_str())
     }
 
-    fn stale_conflict(&self) -> AppError {
-        let why = match self.outcome.as_deref() {
-            Some("completed") => "this lease already delivered its result".to_owned(),
-            Some("superseded") => "the run already has a result".to_owned(),
-            Some("cancelled") => "the batch was cancelled".to_owned(),
-            Some("expired") if self.has_result => {
+    fn stale_conflict(&self) -> DbError {
+        let why = match self.outcome {
+            Some(LeaseOutcome::Completed) => "this lease already delivered its result".to_owned(),
+            Some(LeaseOutcome::Superseded) => "the run already has a result".to_owned(),
+            Some(LeaseOutcome::Cancelled) => "the batch was cancelled".to_owned(),
+            Some(LeaseOutcome::Expired) if self.has_result => {
                 "the lease expired and the run already has a result".to_owned()
             }
-            Some("expired") if !self.batch_active => {
+            Some(LeaseOutcome::Expired) if !self.batch_active => {
                 "the lease expired and the batch has finished without this run".to_owned()
             }
-            Some(outcome) => format!("the lease is no longer valid ({outcome})"),
+            Some(outcome) => format!("the lease is no longer valid ({})", outcome.as_db()),
             None => "the lease is no longer valid".to_owned(),
         };
-        AppError::Conflict(why)
+        DbError::Conflict(why)
     }
 }
 
@@ -421,7 +421,7 @@ pub(super) async fn lookup_lease(
     tx: &mut WriteTx,
     job_id: Uuid,
     token: Uuid,
-) -> Result<LeaseLookup, AppError> {
+) -> Result<LeaseLookup, DbError> {
     let row = sqlx::query(
         "SELECT l.outcome, l.worker_id, j.state, j.lease_token, j.attempts, j.run_id, j.batch_id,
                 r.metrics IS NOT NULL AS has_result, b.response, b.state AS batch_state
@@ -442,15 +442,18 @@ pub(super) async fn lookup_lease(
             .await?
             .is_some();
         return Err(if job_exists {
-            AppError::Conflict(format!("lease {token} was not issued for job {job_id}"))
+            DbError::Conflict(format!("lease {token} was not issued for job {job_id}"))
         } else {
-            AppError::NotFound(format!("job {job_id} not found"))
+            DbError::NotFound(format!("job {job_id} not found"))
         });
     };
     Ok(LeaseLookup {
-        outcome: row.try_get("outcome")?,
+        outcome: row
+            .try_get::<Option<&str>, _>("outcome")?
+            .map(LeaseOutcome::from_db)
+            .transpose()?,
         worker_id: row.try_get("worker_id")?,
-        job_state: row.try_get("state")?,
+        job_state: JobState::from_db(row.try_get("state")?)?,
         current_token: row.try_get("lease_token")?,
         attempts: row.try_get("attempts")?,
         run_id: row.try_get("run_id")?,
@@ -467,7 +470,7 @@ pub(super) async fn expire_leases(
     tx: &mut WriteTx,
     now: i64,
     max_attempts: u32,
-) -> Result<Vec<Uuid>, AppError> {
+) -> Result<Vec<Uuid>, DbError> {
     sqlx::query(
         "UPDATE leases SET outcome = 'expired', ended_at = ?
          WHERE token IN (SELECT lease_token FROM jobs
@@ -508,7 +511,7 @@ pub(super) async fn heartbeat_in(
     token: Uuid,
     progress: f64,
     lease: Duration,
-) -> Result<HeartbeatOutcome, AppError> {
+) -> Result<HeartbeatOutcome, DbError> {
     let now = now_ms();
     let found = lookup_lease(tx, job_id, token).await?;
     if found.is_current(token) {
@@ -531,8 +534,8 @@ pub(super) async fn heartbeat_in(
             lease_expires_in_s: lease.as_secs_f64(),
         });
     }
-    match found.outcome.as_deref() {
-        Some("cancelled" | "superseded") => Ok(HeartbeatOutcome {
+    match found.outcome {
+        Some(LeaseOutcome::Cancelled | LeaseOutcome::Superseded) => Ok(HeartbeatOutcome {
             cancel: true,
             lease_expires_in_s: 0.0,
         }),
@@ -545,24 +548,27 @@ pub(super) async fn complete_in(
     job_id: Uuid,
     token: Uuid,
     completion: &Completion,
-) -> Result<JobUpdate, AppError> {
+) -> Result<JobUpdate, DbError> {
     let now = now_ms();
     let found = lookup_lease(tx, job_id, token).await?;
     let current = found.is_current(token);
     // A late result is accepted only while its batch is still active: once the batch has
     // finished, its analysis may be stored and a campaign may have moved on, and neither may
     // silently disagree with the counts.
-    let late = found.outcome.as_deref() == Some("expired")
+    let late = found.outcome == Some(LeaseOutcome::Expired)
         && !found.has_result
         && found.batch_active
-        && matches!(found.job_state.as_str(), "queued" | "leased" | "dead");
+        && matches!(
+            found.job_state,
+            JobState::Queued | JobState::Leased | JobState::Dead
+        );
     if !(current || late) {
         return Err(found.stale_conflict());
     }
     match completion.metrics.get(&found.response) {
         Some(value) if value.is_finite() => {}
         _ => {
-            return Err(AppError::invalid(
+            return Err(DbError::invalid(
                 format!("metrics.{}", found.response),
                 format!(
                     "the batch's response metric `{}` is missing or not finite",
@@ -572,7 +578,7 @@ pub(super) async fn complete_in(
         }
     }
     if !(completion.wall_time_s.is_finite() && completion.wall_time_s >= 0.0) {
-        return Err(AppError::invalid(
+        return Err(DbError::invalid(
             "wall_time_s",
             "must be a non-negative number",
         ));
@@ -601,7 +607,7 @@ pub(super) async fn complete_in(
     .await?
     .rows_affected();
     if stored != 1 {
-        return Err(AppError::Conflict("the run already has a result".into()));
+        return Err(DbError::Conflict("the run already has a result".into()));
     }
     // The rest of the bookkeeping in one round trip to SQLite (the statements run in
     // order inside this transaction; the last one reports whether the batch finished).
@@ -652,7 +658,7 @@ pub(super) async fn fail_in(
     error: &str,
     max_attempts: u32,
     backoff: Duration,
-) -> Result<JobUpdate, AppError> {
+) -> Result<JobUpdate, DbError> {
     let now = now_ms();
     let found = lookup_lease(tx, job_id, token).await?;
     if !found.is_current(token) {
@@ -696,7 +702,7 @@ pub(super) async fn release_in(
     tx: &mut WriteTx,
     job_id: Uuid,
     token: Uuid,
-) -> Result<JobUpdate, AppError> {
+) -> Result<JobUpdate, DbError> {
     let now = now_ms();
     let found = lookup_lease(tx, job_id, token).await?;
     if !found.is_current(token) {

@@ -30,7 +30,6 @@ use sqlx::{Row, Sqlite, SqliteConnection};
 use uuid::Uuid;
 
 use crate::auth::TokenRole;
-use crate::error::AppError;
 use crate::metrics::Gauges;
 use crate::submit::PlannedBatch;
 use crate::tokens::TokenInfo;
@@ -38,12 +37,14 @@ use crate::tokens::TokenInfo;
 mod analyses;
 mod batches;
 mod campaigns;
+mod error;
 mod jobs;
 mod tokens;
 
 pub use analyses::*;
 use batches::*;
 pub use campaigns::*;
+pub use error::DbError;
 pub use jobs::*;
 #[allow(unused_imports)]
 pub use tokens::*;
@@ -177,7 +178,7 @@ impl std::ops::DerefMut for WriteTx {
 impl WriteTx {
     /// Commits on `Ok`; rolls back on a refusal; discards the connection on any database
     /// error (including a failed COMMIT). Returns `result`, or the COMMIT's error.
-    async fn finish<T>(mut self, result: Result<T, AppError>) -> Result<T, AppError> {
+    async fn finish<T>(mut self, result: Result<T, DbError>) -> Result<T, DbError> {
         match result {
             Ok(value) => match sqlx::query("COMMIT").execute(&mut *self.conn).await {
                 Ok(_) => {
@@ -190,11 +191,11 @@ impl WriteTx {
                     Err(err.into())
                 }
             },
-            Err(AppError::Database(err)) => {
+            Err(DbError::Sqlx(err)) => {
                 self.health.record_failure(&err);
-                Err(AppError::Database(err))
+                Err(DbError::Sqlx(err))
             }
-            Err(err) if err.is_server_fault() => Err(err),
+            Err(err @ (DbError::Corrupt(_) | DbError::Unavailable(_))) => Err(err),
             Err(refusal) => {
                 if sqlx::query("ROLLBACK")
                     .execute(&mut *self.conn)
@@ -210,9 +211,9 @@ impl WriteTx {
 
     /// [`WriteTx::finish`] for the health probe: a successful probe does not clear the
     /// failure of a real write (the probe's in-place update may fit where an insert did not).
-    async fn finish_probe(mut self, result: Result<(), AppError>) -> Result<(), AppError> {
+    async fn finish_probe(mut self, result: Result<(), DbError>) -> Result<(), DbError> {
         if let Err(err) = result {
-            if let AppError::Database(db) = &err {
+            if let DbError::Sqlx(db) = &err {
                 self.health.record_failure(db);
             }
             return Err(err);
@@ -321,7 +322,7 @@ impl Db {
     /// while the last write transaction failed for a storage reason (disk full, I/O error)
     /// and none has succeeded since, so a full disk shows as unhealthy even when the probe's
     /// tiny in-place write still fits.
-    pub async fn ping(&self) -> Result<(), AppError> {
+    pub async fn ping(&self) -> Result<(), DbError> {
         sqlx::query("SELECT 1").execute(&self.reader).await?;
         let mut tx = self.begin_write().await?;
         let result = async {
@@ -334,7 +335,7 @@ impl Db {
         .await;
         tx.finish_probe(result).await?;
         match self.writer_health.failing() {
-            Some(error) => Err(AppError::Unavailable(format!(
+            Some(error) => Err(DbError::Unavailable(format!(
                 "the database cannot store writes: {error}"
             ))),
             None => Ok(()),
@@ -343,7 +344,7 @@ impl Db {
 
     /// Starts a write transaction on the single writer connection (`BEGIN IMMEDIATE`, so the
     /// write lock is taken up front and never upgraded).
-    async fn begin_write(&self) -> Result<WriteTx, AppError> {
+    async fn begin_write(&self) -> Result<WriteTx, DbError> {
         let mut conn = match self.writer.acquire().await {
             Ok(conn) => conn,
             Err(err) => {
@@ -373,50 +374,132 @@ fn short_sha256(text: &str) -> String {
         .collect()
 }
 
-fn parse_uuid(text: &str) -> Result<Uuid, AppError> {
-    Uuid::from_str(text).map_err(|err| AppError::Internal(format!("stored id {text:?}: {err}")))
+fn parse_uuid(text: &str) -> Result<Uuid, DbError> {
+    Uuid::from_str(text).map_err(|err| DbError::Corrupt(format!("stored id {text:?}: {err}")))
 }
 
-fn batch_state_from_db(text: &str) -> Result<BatchState, AppError> {
+fn batch_state_from_db(text: &str) -> Result<BatchState, DbError> {
     match text {
         "active" => Ok(BatchState::Active),
         "completed" => Ok(BatchState::Completed),
         "cancelled" => Ok(BatchState::Cancelled),
-        other => Err(AppError::Internal(format!("stored batch state {other:?}"))),
+        other => Err(DbError::Corrupt(format!("stored batch state {other:?}"))),
     }
 }
 
-fn job_state_to_db(state: RunState) -> &'static str {
-    match state {
-        RunState::Queued => "queued",
-        RunState::Running => "leased",
-        RunState::Completed => "completed",
-        RunState::Dead => "dead",
-        RunState::Cancelled => "cancelled",
+/// A job's state as stored. The one text codec of job states, and the one documented mapping
+/// to the wire: the database says `leased` where the API says `running` (a job is leased to a
+/// worker; its run is running); every other state is spelled the same in both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum JobState {
+    Queued,
+    Leased,
+    Completed,
+    Dead,
+    Cancelled,
+}
+
+impl JobState {
+    /// The stored spelling (the `jobs.state` CHECK constraint lists exactly these).
+    pub(crate) fn as_db(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Leased => "leased",
+            JobState::Completed => "completed",
+            JobState::Dead => "dead",
+            JobState::Cancelled => "cancelled",
+        }
+    }
+
+    /// Decodes a stored state.
+    pub(crate) fn from_db(text: &str) -> Result<Self, DbError> {
+        Ok(match text {
+            "queued" => JobState::Queued,
+            "leased" => JobState::Leased,
+            "completed" => JobState::Completed,
+            "dead" => JobState::Dead,
+            "cancelled" => JobState::Cancelled,
+            other => return Err(DbError::Corrupt(format!("stored job state {other:?}"))),
+        })
     }
 }
 
-fn run_state_from_job(text: &str) -> Result<RunState, AppError> {
-    match text {
-        "queued" => Ok(RunState::Queued),
-        "leased" => Ok(RunState::Running),
-        "completed" => Ok(RunState::Completed),
-        "dead" => Ok(RunState::Dead),
-        "cancelled" => Ok(RunState::Cancelled),
-        other => Err(AppError::Internal(format!("stored job state {other:?}"))),
+impl From<JobState> for RunState {
+    fn from(state: JobState) -> RunState {
+        match state {
+            JobState::Queued => RunState::Queued,
+            JobState::Leased => RunState::Running,
+            JobState::Completed => RunState::Completed,
+            JobState::Dead => RunState::Dead,
+            JobState::Cancelled => RunState::Cancelled,
+        }
     }
+}
+
+impl From<RunState> for JobState {
+    fn from(state: RunState) -> JobState {
+        match state {
+            RunState::Queued => JobState::Queued,
+            RunState::Running => JobState::Leased,
+            RunState::Completed => JobState::Completed,
+            RunState::Dead => JobState::Dead,
+            RunState::Cancelled => JobState::Cancelled,
+        }
+    }
+}
+
+/// How a lease ended, as stored in `leases.outcome` (NULL while current).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LeaseOutcome {
+    Completed,
+    Failed,
+    Released,
+    Expired,
+    Superseded,
+    Cancelled,
+}
+
+impl LeaseOutcome {
+    /// Decodes a stored outcome.
+    pub(crate) fn from_db(text: &str) -> Result<Self, DbError> {
+        Ok(match text {
+            "completed" => LeaseOutcome::Completed,
+            "failed" => LeaseOutcome::Failed,
+            "released" => LeaseOutcome::Released,
+            "expired" => LeaseOutcome::Expired,
+            "superseded" => LeaseOutcome::Superseded,
+            "cancelled" => LeaseOutcome::Cancelled,
+            other => return Err(DbError::Corrupt(format!("stored lease outcome {other:?}"))),
+        })
+    }
+
+    /// The stored spelling.
+    pub(crate) fn as_db(self) -> &'static str {
+        match self {
+            LeaseOutcome::Completed => "completed",
+            LeaseOutcome::Failed => "failed",
+            LeaseOutcome::Released => "released",
+            LeaseOutcome::Expired => "expired",
+            LeaseOutcome::Superseded => "superseded",
+            LeaseOutcome::Cancelled => "cancelled",
+        }
+    }
+}
+
+fn run_state_from_job(text: &str) -> Result<RunState, DbError> {
+    JobState::from_db(text).map(RunState::from)
 }
 
 fn model_to_db(model: ModelName) -> &'static str {
     crate::submit::model_label(model)
 }
 
-fn model_from_db(text: &str) -> Result<ModelName, AppError> {
+fn model_from_db(text: &str) -> Result<ModelName, DbError> {
     match text {
         "linear" => Ok(ModelName::Linear),
         "2fi" => Ok(ModelName::TwoFactorInteraction),
         "quadratic" => Ok(ModelName::Quadratic),
         "none" => Ok(ModelName::None),
-        other => Err(AppError::Internal(format!("stored model {other:?}"))),
+        other => Err(DbError::Corrupt(format!("stored model {other:?}"))),
     }
 }
