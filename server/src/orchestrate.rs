@@ -82,9 +82,13 @@ pub async fn reclaim_expired_leases(state: AppState) {
     loop {
         ticks.tick().await;
         match state.db.reclaim_expired(state.config.max_attempts).await {
-            Ok(finished) => {
-                jobs_available(&state);
-                batches_finished(&state, finished);
+            Ok(expired) => {
+                // Only when something changed: waking every long-poll each second would turn
+                // idle workers into a stream of empty claims.
+                if expired.requeued {
+                    jobs_available(&state);
+                }
+                batches_finished(&state, expired.finished);
             }
             Err(err) => tracing::warn!(error = %err, "reclaiming expired leases failed"),
         }

@@ -499,3 +499,69 @@ async fn a_large_batch_does_not_copy_the_spec_into_every_run() {
         "2,000 runs grew the database by {grown} bytes; the spec is {spec_bytes} bytes"
     );
 }
+
+/// Also found: expired leases were only reclaimed inside `claim`. With no worker polling, an
+/// expired job now goes back to the queue on the server's timer.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_expired_lease_is_reclaimed_without_any_claim() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |config| {
+        config.lease = Duration::from_millis(300);
+        config.reclaim_interval = Duration::from_millis(100);
+    })
+    .await;
+    let batch = server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 1))
+        .await;
+    let worker = server.register().await;
+    let job = server.claim(worker, 0.0).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    let (status, jobs) = server
+        .get(&format!("/v1/jobs?batch={}&state=running", batch.id))
+        .await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(jobs, json!([]), "job {} is still running", job.job_id);
+    assert_eq!(server.status(batch.id).await.summary.counts.queued, 4);
+    server.stop().await;
+}
+
+/// Also found: a worker token could register over any worker id. Worker rows now belong to the
+/// token that made them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_id_belongs_to_the_token_that_registered_it() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let worker = server.register().await;
+    let intruder = repose_server::create_token(&db, "intruder", repose_server::TokenRole::Worker)
+        .await
+        .unwrap();
+    let registration = json!({"instance_id": worker, "host": "evil", "threads": 1,
+                              "version": "x"});
+    let (status, body) = server
+        .post_as("/v1/workers/register", &registration, Some(&intruder))
+        .await;
+    assert_eq!(status, StatusCode::FORBIDDEN, "{body}");
+    let (status, body) = server
+        .post_as(
+            "/v1/jobs/claim",
+            &json!({"worker_id": worker, "wait_s": 0.0}),
+            Some(&intruder),
+        )
+        .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    let (_, workers) = server.get("/v1/workers").await;
+    assert_eq!(workers[0]["host"], "test-host");
+    server.stop().await;
+}
+
+/// Also found: the database file was created world-readable.
+#[cfg(unix)]
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_database_file_is_private_to_its_owner() {
+    use std::os::unix::fs::PermissionsExt;
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let mode = std::fs::metadata(&db).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o600, "mode {mode:o}");
+    server.stop().await;
+}

@@ -2,6 +2,15 @@
 
 use super::*;
 
+/// What a sweep of expired leases did.
+#[derive(Debug, Clone, Default)]
+pub struct Expired {
+    /// Some job went back to the queue.
+    pub requeued: bool,
+    /// Batches the sweep finished (their last jobs died).
+    pub finished: Vec<Uuid>,
+}
+
 /// Result of a completion, failure or release.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct JobUpdate {
@@ -139,7 +148,7 @@ impl Db {
                     )
                     .is_ok()
             {
-                expire_leases(&mut tx, now, max_attempts).await?
+                expire_leases(&mut tx, now, max_attempts).await?.finished
             } else {
                 Vec::new()
             };
@@ -213,7 +222,7 @@ impl Db {
     /// Returns expired leases to the queue (or marks their jobs dead after `max_attempts`);
     /// the server calls this on a timer so an expired job does not wait for a claim. Returns
     /// the batches this finished.
-    pub async fn reclaim_expired(&self, max_attempts: u32) -> Result<Vec<Uuid>, DbError> {
+    pub async fn reclaim_expired(&self, max_attempts: u32) -> Result<Expired, DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
         let result = expire_leases(&mut tx, now, max_attempts).await;
@@ -470,7 +479,7 @@ pub(super) async fn expire_leases(
     tx: &mut WriteTx,
     now: i64,
     max_attempts: u32,
-) -> Result<Vec<Uuid>, DbError> {
+) -> Result<Expired, DbError> {
     sqlx::query(
         "UPDATE leases SET outcome = 'expired', ended_at = ?
          WHERE token IN (SELECT lease_token FROM jobs
@@ -494,15 +503,17 @@ pub(super) async fn expire_leases(
     .bind(now)
     .fetch_all(&mut **tx)
     .await?;
-    let mut finished = Vec::new();
+    let mut swept = Expired::default();
     for row in &expired {
-        let state: String = row.try_get("state")?;
+        let state = JobState::from_db(row.try_get("state")?)?;
         let batch_id: String = row.try_get("batch_id")?;
-        if state == "dead" && finish_batch_if_done(tx, &batch_id, now).await? {
-            finished.push(parse_uuid(&batch_id)?);
+        if state == JobState::Queued {
+            swept.requeued = true;
+        } else if finish_batch_if_done(tx, &batch_id, now).await? {
+            swept.finished.push(parse_uuid(&batch_id)?);
         }
     }
-    Ok(finished)
+    Ok(swept)
 }
 
 pub(super) async fn heartbeat_in(
