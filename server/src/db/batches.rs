@@ -242,9 +242,9 @@ impl Db {
     }
 }
 
-/// The owner of a batch: `None` if it does not exist, `Some(None)` if it has none (from before
-/// access control).
 impl Db {
+    /// The owner of a batch: `None` if it does not exist, `Some(None)` if it has none (from
+    /// before access control).
     pub async fn batch_owner(&self, batch_id: Uuid) -> Result<Option<Option<String>>, DbError> {
         let owner: Option<Option<String>> =
             sqlx::query_scalar("SELECT owner FROM batches WHERE id = ?")

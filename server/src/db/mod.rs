@@ -41,13 +41,11 @@ mod error;
 mod jobs;
 mod tokens;
 
-pub use analyses::*;
+pub use analyses::AnalysisInput;
 use batches::*;
-pub use campaigns::*;
+pub use campaigns::{CampaignRecord, CampaignUpdate};
 pub use error::DbError;
-pub use jobs::*;
-#[allow(unused_imports)]
-pub use tokens::*;
+pub use jobs::JobUpdate;
 
 /// How long a connection waits for SQLite's lock (another process, a checkpoint) before failing.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
