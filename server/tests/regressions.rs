@@ -565,3 +565,47 @@ async fn the_database_file_is_private_to_its_owner() {
     assert_eq!(mode, 0o600, "mode {mode:o}");
     server.stop().await;
 }
+
+/// Defect 7 (starving heartbeats): while a 10,000-run batch is stored, heartbeats of running
+/// jobs are never held up for a second or more (the lease protocol depends on them).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn heartbeats_are_not_blocked_by_a_large_submission() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 1))
+        .await;
+    let worker = server.register().await;
+    let job = server.claim(worker, 0.0).await.unwrap();
+    let submitting = async {
+        let started = Instant::now();
+        let big = server
+            .submit(&batch_request(json!({"type": "factorial"}), "linear", 2500))
+            .await;
+        assert_eq!(big.run_count, 10_000);
+        started.elapsed()
+    };
+    let beating = async {
+        let mut worst = Duration::ZERO;
+        let deadline = Instant::now() + Duration::from_secs(4);
+        while Instant::now() < deadline {
+            let sent = Instant::now();
+            let (status, body) = server
+                .post(
+                    &format!("/v1/jobs/{}/heartbeat", job.job_id),
+                    &json!({"lease_token": job.lease_token, "progress": 0.5}),
+                )
+                .await;
+            assert_eq!(status, StatusCode::OK, "{body}");
+            worst = worst.max(sent.elapsed());
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        worst
+    };
+    let (submission, worst) = tokio::join!(submitting, beating);
+    assert!(
+        worst < Duration::from_secs(1),
+        "a heartbeat waited {worst:?} while a 10,000-run batch was stored ({submission:?})"
+    );
+    server.stop().await;
+}
