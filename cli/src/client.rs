@@ -81,6 +81,9 @@ impl UserClient {
     pub fn new(server: &str, token: Option<String>) -> Result<UserClient> {
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(5))
+            // The server closes connections idle for its header-read timeout (30 s); dropping
+            // ours sooner avoids sending a request on a connection it is closing.
+            .pool_idle_timeout(Duration::from_secs(20))
             .timeout(Duration::from_secs(60))
             .build()
             .context("cannot build the HTTP client")?;

@@ -17,6 +17,8 @@ struct Shared {
     server: TestServer,
     /// Ids that exist, so generated paths also reach real batches and jobs.
     batch: String,
+    /// A registered worker id.
+    worker: uuid::Uuid,
     /// No connection reuse: a connection the server closes after an error reply must not be
     /// picked up for the next case (a client-side race, not the server's fault).
     client: reqwest::Client,
@@ -32,7 +34,7 @@ fn shared() -> &'static Shared {
             .build()
             .unwrap();
         let (dir, db) = temp_db();
-        let (server, batch) = runtime.block_on(async {
+        let (server, batch, worker) = runtime.block_on(async {
             let server = TestServer::start(&db, |config| {
                 config.max_claim_wait = std::time::Duration::from_millis(50);
             })
@@ -40,12 +42,14 @@ fn shared() -> &'static Shared {
             let batch = server
                 .submit(&batch_request(json!({"type": "factorial"}), "linear", 2))
                 .await;
-            (server, batch.id.to_string())
+            let worker = server.register().await;
+            (server, batch.id.to_string(), worker)
         });
         Shared {
             runtime,
             server,
             batch,
+            worker,
             client: reqwest::Client::builder()
                 .pool_max_idle_per_host(0)
                 .build()
@@ -160,7 +164,35 @@ struct Generated {
     token: u8,
 }
 
+/// The worker protocol with generated numbers where durations and progress go (`wait_s`,
+/// `progress`), sent with the worker token: the fields that once reached `from_secs_f64`.
+fn worker_request() -> impl Strategy<Value = Generated> {
+    (extreme_number(), 0usize..2).prop_map(|(number, which)| {
+        let worker = shared().worker;
+        match which {
+            0 => Generated {
+                verb: Verb::Post,
+                path: "/v1/jobs/claim".to_owned(),
+                body: Some(json!({"worker_id": worker, "wait_s": number}).to_string()),
+                token: 1,
+            },
+            _ => Generated {
+                verb: Verb::Post,
+                path: format!("/v1/jobs/{}/heartbeat", uuid::Uuid::new_v4()),
+                body: Some(
+                    json!({"lease_token": uuid::Uuid::new_v4(), "progress": number}).to_string(),
+                ),
+                token: 1,
+            },
+        }
+    })
+}
+
 fn request() -> impl Strategy<Value = Generated> {
+    prop_oneof![3 => any_request(), 1 => worker_request()]
+}
+
+fn any_request() -> impl Strategy<Value = Generated> {
     let endpoint = 0..ENDPOINTS.len();
     let id = prop_oneof![
         Just(None),
