@@ -609,3 +609,36 @@ async fn heartbeats_are_not_blocked_by_a_large_submission() {
     );
     server.stop().await;
 }
+
+/// Defect 4 (reads): a batch stored by an older server with `null`s where natural values
+/// overflowed can still be read (JSON and CSV) instead of answering 500 forever.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn runs_stored_with_nulls_by_an_older_server_can_still_be_read() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let batch = server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 1))
+        .await;
+    server.stop().await;
+    // What the old server wrote for an overflowing range: `null` for the infinite value.
+    {
+        use sqlx::Connection;
+        let mut conn = sqlx::SqliteConnection::connect(&format!("sqlite://{}", db.display()))
+            .await
+            .unwrap();
+        sqlx::query("UPDATE runs SET natural = '[null, 0.3]' WHERE run_index = 0")
+            .execute(&mut conn)
+            .await
+            .unwrap();
+        conn.close().await.unwrap();
+    }
+    let server = TestServer::start(&db, |_| {}).await;
+    let (status, body) = server.get(&format!("/v1/batches/{}/runs", batch.id)).await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    let (status, csv) = server
+        .get_text(&format!("/v1/batches/{}/runs?format=csv", batch.id))
+        .await;
+    assert_eq!(status, StatusCode::OK, "{csv}");
+    assert_eq!(csv.lines().count(), 5);
+    server.stop().await;
+}

@@ -157,12 +157,21 @@ impl Db {
         for row in &rows {
             let stored: &str = row.try_get("spec")?;
             spec_texts.push(if stored.is_empty() {
-                let spec = self
+                // A run whose spec cannot be rebuilt (values stored by an older server that
+                // did not refuse overflowing ranges) is listed without a hash, not a 500.
+                match self
                     .run_spec(batch_id, stored, row.try_get("natural")?)
-                    .await?;
-                serde_json::to_string(&spec)?
+                    .await
+                {
+                    Ok(spec) => Some(serde_json::to_string(&spec)?),
+                    Err(DbError::Corrupt(why)) => {
+                        tracing::warn!(batch = %batch_id, %why, "run spec cannot be rebuilt");
+                        None
+                    }
+                    Err(err) => return Err(err),
+                }
             } else {
-                stored.to_owned()
+                Some(stored.to_owned())
             });
         }
         let runs = rows
@@ -201,7 +210,7 @@ impl Db {
                     wall_time_s: row.try_get("wall_time_s")?,
                     worker_id: worker_id.as_deref().map(parse_uuid).transpose()?,
                     last_error: row.try_get("last_error")?,
-                    spec_sha256: Some(short_sha256(&spec_texts[index])),
+                    spec_sha256: spec_texts[index].as_deref().map(short_sha256),
                     engine_version: row.try_get("engine_version")?,
                 })
             })
