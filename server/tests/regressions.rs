@@ -164,8 +164,8 @@ async fn full_disk_mid_run_never_loses_an_acknowledged_result() {
     server.stop().await;
 }
 
-/// `futures::future::join_all` without the dependency: spawn-free sequential polling via
-/// `tokio::join!` is not variadic, so run them as tasks on a `JoinSet`-like local loop.
+/// Polls all `futures` concurrently on the current task until every one is done (what
+/// `futures::future::join_all` does, without adding the crate for one test).
 async fn futures_join_all<F: std::future::Future<Output = ()>>(futures: Vec<F>) {
     let mut pinned: Vec<_> = futures.into_iter().map(Box::pin).collect();
     std::future::poll_fn(|cx| {
