@@ -81,6 +81,9 @@ impl UserClient {
     pub fn new(server: &str, token: Option<String>) -> Result<UserClient> {
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(5))
+            // The server closes connections idle for its header-read timeout (30 s); dropping
+            // ours sooner avoids sending a request on a connection it is closing.
+            .pool_idle_timeout(Duration::from_secs(20))
             .timeout(Duration::from_secs(60))
             .build()
             .context("cannot build the HTTP client")?;
@@ -389,8 +392,8 @@ pub fn status(args: &StatusArgs) -> Result<()> {
 }
 
 pub fn watch(args: &WatchArgs) -> Result<()> {
-    if !(args.interval_s.is_finite() && args.interval_s >= 0.05) {
-        bail!("--interval-s must be at least 0.05");
+    if !(args.interval_s.is_finite() && (0.05..=86_400.0).contains(&args.interval_s)) {
+        bail!("--interval-s must be between 0.05 and 86400");
     }
     let client = UserClient::new(&args.server.server, args.server.token.clone())?;
     runtime()?.block_on(finish_watch(

@@ -24,14 +24,29 @@ pub struct ServerArgs {
     /// Let requests without a token use the read-only GET endpoints (batches, runs, analyses,
     /// workers, jobs, metrics). Submitting, cancelling and the worker protocol always need a
     /// token (`repose token create`).
-    #[arg(long, env = "REPOSE_OPEN_READ")]
+    #[arg(long, env = "REPOSE_OPEN_READ", conflicts_with = "private_reads")]
     pub open_read: bool,
+    /// Users read only their own batches and campaigns (and their batches' jobs); worker
+    /// tokens read only their own workers' jobs. Default: any valid token reads everything.
+    #[arg(long, env = "REPOSE_PRIVATE_READS")]
+    pub private_reads: bool,
+    /// `normal`: an acknowledged result survives a crash of the server process (SQLite
+    /// `synchronous=NORMAL` in WAL mode) but the last ones may be lost on power loss; `full`:
+    /// it survives power loss too (an fsync per write, slower).
+    #[arg(long, env = "REPOSE_DURABILITY", default_value = "normal", value_parser = ["normal", "full"])]
+    pub durability: String,
 }
+
+/// Longest accepted lease: a day.
+pub(crate) const MAX_LEASE_S: f64 = 86_400.0;
 
 /// The validated server configuration (checked once, before anything starts).
 fn config(args: &ServerArgs) -> Result<Config> {
-    if !(args.lease_s.is_finite() && args.lease_s >= 1.0) {
-        bail!("--lease-s must be at least 1 second, got {}", args.lease_s);
+    if !(args.lease_s.is_finite() && (1.0..=MAX_LEASE_S).contains(&args.lease_s)) {
+        bail!(
+            "--lease-s must be between 1 and {MAX_LEASE_S} seconds, got {}",
+            args.lease_s
+        );
     }
     if args.max_attempts == 0 {
         bail!("--max-attempts must be at least 1");
@@ -41,6 +56,8 @@ fn config(args: &ServerArgs) -> Result<Config> {
     config.lease = Duration::from_secs_f64(args.lease_s);
     config.max_attempts = args.max_attempts;
     config.open_read = args.open_read;
+    config.private_reads = args.private_reads;
+    config.durability_full = args.durability == "full";
     Ok(config)
 }
 
@@ -85,5 +102,31 @@ pub(crate) async fn shutdown_signal() {
     tokio::select! {
         () = ctrl_c => {},
         () = terminate => {},
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        server: ServerArgs,
+    }
+
+    #[test]
+    fn an_absurd_lease_is_an_error_not_a_panic() {
+        for lease in ["1e300", "inf", "0.5", "86401"] {
+            let cli = Cli::try_parse_from(["repose", "--lease-s", lease]).unwrap();
+            let err = config(&cli.server).unwrap_err();
+            assert!(err.to_string().contains("--lease-s"), "{err}");
+        }
+        let cli =
+            Cli::try_parse_from(["repose", "--lease-s", "30", "--durability", "full"]).unwrap();
+        let config = config(&cli.server).unwrap();
+        assert_eq!(config.lease, Duration::from_secs(30));
+        assert!(config.durability_full);
     }
 }

@@ -76,8 +76,12 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
     if args.workers == 0 {
         bail!("--workers must be at least 1");
     }
-    if !(args.lease_s.is_finite() && args.lease_s >= 1.0) {
-        bail!("--lease-s must be at least 1 second, got {}", args.lease_s);
+    let max_lease = crate::server_cmd::MAX_LEASE_S;
+    if !(args.lease_s.is_finite() && (1.0..=max_lease).contains(&args.lease_s)) {
+        bail!(
+            "--lease-s must be between 1 and {max_lease} seconds, got {}",
+            args.lease_s
+        );
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = match args.threads {

@@ -12,6 +12,10 @@
 //! | [`Access::Worker`] | a worker token; a user token gets 403 |
 //!
 //! A missing, malformed, unknown or revoked token is 401 with `WWW-Authenticate: Bearer`.
+//!
+//! With [`crate::Config::private_reads`], reads are narrowed further: no anonymous reads, a
+//! worker token reads only `GET /v1/jobs` (its own workers' jobs), and a user token reads only
+//! its own batches and campaigns (the handlers check ownership; lists are filtered).
 
 use std::fmt;
 use std::str::FromStr;
@@ -183,7 +187,18 @@ pub async fn authorize(
         None => None,
     };
     match (access, &caller) {
-        (Access::Read, None) if state.config.open_read => {}
+        (Access::Read, None) if state.config.open_read && !state.config.private_reads => {}
+        (Access::Read, Some(c))
+            if state.config.private_reads
+                && c.role == TokenRole::Worker
+                && request.uri().path() != "/v1/jobs" =>
+        {
+            return Err(AppError::Forbidden(format!(
+                "token `{}` is a worker token; with private reads a worker token reads only \
+                 its jobs (GET /v1/jobs)",
+                c.name
+            )))
+        }
         (_, None) => {
             return Err(AppError::Unauthorized(
                 "this endpoint needs a token: send `Authorization: Bearer <token>`".into(),

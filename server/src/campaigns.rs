@@ -64,7 +64,7 @@ pub async fn create(
             },
         )
         .await?;
-    state.jobs_available.notify_waiters();
+    crate::orchestrate::jobs_available(state);
     Ok((id, batch_id))
 }
 
@@ -238,7 +238,7 @@ pub async fn advance(
     {
         None => tracing::debug!(campaign = %campaign_id, "campaign already advanced"),
         Some(Some(new_batch)) => {
-            state.jobs_available.notify_waiters();
+            crate::orchestrate::jobs_available(state);
             tracing::info!(campaign = %campaign_id, batch = %new_batch, stage = %stage,
                 "campaign issued its next batch");
         }

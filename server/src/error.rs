@@ -46,7 +46,12 @@ pub enum AppError {
         /// Axum's explanation.
         message: String,
     },
-    /// A database failure: 500, details only in the log.
+    /// The server cannot serve this right now (the database cannot store writes): 503 with
+    /// `Retry-After`.
+    #[error("{0}")]
+    Unavailable(String),
+    /// A database failure: 503 when storage is the cause (disk full, I/O error, busy), else
+    /// 500; details only in the log.
     #[error("database error: {0}")]
     Database(#[from] sqlx::Error),
     /// Any other server-side failure: 500, details only in the log.
@@ -60,6 +65,43 @@ impl AppError {
         AppError::Invalid {
             field: Some(field.into()),
             message: message.into(),
+        }
+    }
+}
+
+/// Whether a database error is the storage's condition (full, I/O, locked, no connection),
+/// which a client may retry later, rather than a bug.
+fn is_storage_condition(err: &sqlx::Error) -> bool {
+    match err {
+        sqlx::Error::Database(db) => {
+            // SQLite primary result codes: BUSY 5, LOCKED 6, NOMEM 7, READONLY 8, IOERR 10,
+            // FULL 13, CANTOPEN 14.
+            let code = db
+                .code()
+                .and_then(|code| code.parse::<i32>().ok())
+                .map(|code| code & 0xff);
+            matches!(code, Some(5..=8 | 10 | 13 | 14))
+        }
+        sqlx::Error::Io(_) | sqlx::Error::PoolTimedOut | sqlx::Error::PoolClosed => true,
+        _ => false,
+    }
+}
+
+impl From<crate::db::DbError> for AppError {
+    /// The storage layer's failures and refusals, as HTTP: the one place they are mapped.
+    fn from(err: crate::db::DbError) -> Self {
+        use crate::db::DbError;
+        match err {
+            DbError::NotFound(message) => AppError::NotFound(message),
+            DbError::Conflict(message) => AppError::Conflict(message),
+            DbError::Forbidden(message) => AppError::Forbidden(message),
+            DbError::Invalid { field, message } => AppError::Invalid {
+                field: Some(field),
+                message,
+            },
+            DbError::Unavailable(message) => AppError::Unavailable(message),
+            DbError::Sqlx(err) => AppError::Database(err),
+            DbError::Corrupt(message) => AppError::Internal(message),
         }
     }
 }
@@ -97,6 +139,14 @@ impl IntoResponse for AppError {
             AppError::Conflict(message) => (StatusCode::CONFLICT, None, message),
             AppError::MethodNotAllowed(message) => (StatusCode::METHOD_NOT_ALLOWED, None, message),
             AppError::Body { status, message } => (status, None, message),
+            AppError::Unavailable(message) => {
+                tracing::warn!(error = %message, "service unavailable");
+                return unavailable("the server cannot store writes right now; retry later");
+            }
+            AppError::Database(err) if is_storage_condition(&err) => {
+                tracing::error!(error = %err, "storage failure");
+                return unavailable("the server cannot store writes right now; retry later");
+            }
             internal @ (AppError::Database(_) | AppError::Internal(_)) => {
                 tracing::error!(error = %internal, "request failed");
                 (
@@ -115,4 +165,17 @@ impl IntoResponse for AppError {
         )
             .into_response()
     }
+}
+
+/// 503 with a `Retry-After` of a few seconds.
+fn unavailable(message: &str) -> Response {
+    (
+        StatusCode::SERVICE_UNAVAILABLE,
+        [(header::RETRY_AFTER, HeaderValue::from_static("5"))],
+        Json(ApiError {
+            error: message.to_owned(),
+            field: None,
+        }),
+    )
+        .into_response()
 }

@@ -30,6 +30,7 @@ mod campaigns;
 mod db;
 mod error;
 mod metrics;
+mod orchestrate;
 mod routes;
 mod submit;
 pub mod tokens;
@@ -59,6 +60,22 @@ pub struct Config {
     /// Let requests without a token use the read-only (GET) endpoints; everything else still
     /// needs a token.
     pub open_read: bool,
+    /// Users read only their own batches and campaigns (and the jobs of their batches); worker
+    /// tokens read only the jobs of the workers they registered. Off: any token reads all.
+    pub private_reads: bool,
+    /// `synchronous=FULL`: every acknowledged write survives a power loss (see the README's
+    /// durability section); the default `NORMAL` survives a crash of the server process.
+    pub durability_full: bool,
+    /// Cap on the database's size in SQLite pages (`max_page_count`); writes beyond it fail as
+    /// on a full disk. `None`: no cap. The fault-injection tests use it to fill the "disk".
+    pub max_db_pages: Option<u64>,
+    /// A client must send a request's headers within this time, or its connection is closed.
+    pub header_read_timeout: Duration,
+    /// After the shutdown signal, in-flight requests get this long to finish; connections
+    /// still open then are dropped.
+    pub shutdown_grace: Duration,
+    /// How often expired leases are returned to the queue even when no worker claims.
+    pub reclaim_interval: Duration,
 }
 
 impl Config {
@@ -74,6 +91,12 @@ impl Config {
             body_limit_bytes: 8 * 1024 * 1024,
             max_claim_wait: Duration::from_secs(30),
             open_read: false,
+            private_reads: false,
+            durability_full: false,
+            max_db_pages: None,
+            header_read_timeout: Duration::from_secs(30),
+            shutdown_grace: Duration::from_secs(10),
+            reclaim_interval: Duration::from_secs(1),
         }
     }
 }
@@ -123,7 +146,14 @@ pub struct AppState {
 impl AppState {
     /// Opens (creating and migrating if needed) the database named in `config`.
     pub async fn open(config: Config) -> Result<Self, ServeError> {
-        let db = db::Db::open(&config.db_path).await?;
+        let db = db::Db::open_with(
+            &config.db_path,
+            &db::OpenOptions {
+                durability_full: config.durability_full,
+                max_pages: config.max_db_pages,
+            },
+        )
+        .await?;
         let (shutdown_sender, shutdown) = watch::channel(false);
         Ok(AppState {
             db,
@@ -146,13 +176,19 @@ impl AppState {
     }
 }
 
-/// Runs the server on `listener` until `shutdown` resolves, then finishes in-flight requests,
-/// ends long-polls and closes the database.
+/// Runs the server on `listener` until `shutdown` resolves, then stops accepting, gives
+/// in-flight requests up to [`Config::shutdown_grace`] to finish, ends long-polls and closes the
+/// database. A client that does not send its headers within [`Config::header_read_timeout`]
+/// is disconnected, so no connection can hold the server open.
 pub async fn serve(
     config: Config,
     listener: TcpListener,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ServeError> {
+    use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+    use hyper_util::server::conn::auto::Builder;
+    use hyper_util::service::TowerToHyperService;
+
     let state = AppState::open(config).await?;
     if let Ok(addr) = listener.local_addr() {
         tracing::info!(%addr, db = %state.config.db_path.display(), "repose server listening");
@@ -160,13 +196,54 @@ pub async fn serve(
     // Campaigns whose batch finished while the server was down continue now.
     let resuming = state.clone();
     tokio::spawn(async move { campaigns::resume_all(&resuming).await });
-    let stopping = state.clone();
-    let result = axum::serve(listener, app(state.clone()))
-        .with_graceful_shutdown(async move {
-            shutdown.await;
-            stopping.begin_shutdown();
-        })
-        .await;
+    let reclaimer = tokio::spawn(orchestrate::reclaim_expired_leases(state.clone()));
+
+    let router = app(state.clone());
+    let mut builder = Builder::new(TokioExecutor::new());
+    builder
+        .http1()
+        .timer(TokioTimer::new())
+        .header_read_timeout(state.config.header_read_timeout);
+    let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    tokio::pin!(shutdown);
+    loop {
+        tokio::select! {
+            accepted = listener.accept() => {
+                let stream = match accepted {
+                    Ok((stream, _)) => stream,
+                    Err(err) => {
+                        // Out of file descriptors and the like: back off instead of spinning.
+                        tracing::warn!(error = %err, "accepting a connection failed");
+                        tokio::time::sleep(Duration::from_millis(50)).await;
+                        continue;
+                    }
+                };
+                let service = TowerToHyperService::new(router.clone());
+                let connection = builder
+                    .serve_connection_with_upgrades(TokioIo::new(stream), service)
+                    .into_owned();
+                let connection = graceful.watch(connection);
+                tokio::spawn(async move {
+                    if let Err(err) = connection.await {
+                        tracing::debug!(error = %err, "connection ended with an error");
+                    }
+                });
+            }
+            () = &mut shutdown => break,
+        }
+    }
+    drop(listener);
+    state.begin_shutdown();
+    reclaimer.abort();
+    if tokio::time::timeout(state.config.shutdown_grace, graceful.shutdown())
+        .await
+        .is_err()
+    {
+        tracing::warn!(
+            grace_s = state.config.shutdown_grace.as_secs_f64(),
+            "connections still open after the shutdown grace period; dropping them"
+        );
+    }
     state.close().await;
-    result.map_err(ServeError::from)
+    Ok(())
 }

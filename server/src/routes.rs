@@ -11,12 +11,11 @@ use axum::http::{header, StatusCode};
 use axum::middleware;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{on, MethodFilter, MethodRouter};
-use axum::{Json, Router};
+use axum::{Extension, Json, Router};
 use repose_api::{
     BatchCreated, BatchRequest, BatchState, CampaignBatch, CampaignCreated, CampaignDecision,
     CampaignSummary, CampaignView, ClaimRequest, Completion, Failure, Health, Heartbeat,
-    HeartbeatResponse, JobUpdateResponse, Release, RunState, RunView, WorkerRegistered,
-    WorkerRegistration,
+    HeartbeatResponse, Release, RunState, RunView, WorkerRegistered, WorkerRegistration,
 };
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
@@ -24,9 +23,9 @@ use tokio::time::Instant;
 use uuid::Uuid;
 
 use crate::auth::{authorize, Access, Caller};
-use crate::db::JobUpdate;
+use crate::db::ReadScope;
 use crate::error::AppError;
-use crate::{analysis, campaigns, submit, AppState};
+use crate::{analysis, campaigns, orchestrate, submit, AppState};
 
 /// How often a waiting claim re-checks the queue even without a notification, so retry
 /// back-offs and expired leases are picked up without a background task.
@@ -37,6 +36,18 @@ const BATCH_LIST_LIMIT: u32 = 500;
 
 /// Workers listed by `GET /v1/workers`.
 const WORKER_LIST_LIMIT: u32 = 1000;
+
+/// Longest error text a worker may report for a failed run, in bytes.
+const MAX_ERROR_BYTES: usize = 16 * 1024;
+
+/// Largest `details` document of a completion (serialized), in bytes.
+const MAX_DETAILS_BYTES: usize = 64 * 1024;
+
+/// Most metrics one completion may report.
+const MAX_METRICS: usize = 256;
+
+/// Largest single picture of a completion, in bytes.
+const MAX_PICTURE_BYTES: usize = 2 * 1024 * 1024;
 
 /// Default and largest `limit` of `GET /v1/jobs`.
 const JOB_LIST_DEFAULT: u32 = 100;
@@ -222,10 +233,87 @@ where
     }
 }
 
-/// Parses an id from the path; a malformed one is the client's mistake (400), not ours.
+/// The `{id}` of a path, as a UUID: the one place path ids are parsed (axum's
+/// `customize-path-rejection` pattern). A malformed id is the client's mistake, a 400 naming
+/// what kind of id it should have been (`invalid batch id `x``), in the server's error format.
+#[derive(Debug, Clone, Copy)]
+struct PathId(Uuid);
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for PathId {
+    type Rejection = AppError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        state: &S,
+    ) -> Result<Self, AppError> {
+        // `/v1/batches/{id}/…` holds a batch id, `/v1/jobs/{id}/…` a job id, and so on.
+        let what = match parts.uri.path().split('/').nth(2) {
+            Some("batches") => "batch",
+            Some("jobs") => "job",
+            Some("campaigns") => "campaign",
+            _ => "path",
+        };
+        let Path(raw) = Path::<String>::from_request_parts(parts, state)
+            .await
+            .map_err(|rejection| AppError::BadRequest(rejection.body_text()))?;
+        parse_id(&raw, what).map(PathId)
+    }
+}
+
+/// Parses an id; a malformed one is the client's mistake (400), not ours.
 fn parse_id(raw: &str, what: &str) -> Result<Uuid, AppError> {
     Uuid::parse_str(raw)
         .map_err(|_| AppError::BadRequest(format!("invalid {what} id `{raw}`: expected a UUID")))
+}
+
+/// The authenticated reader of a GET, if any (anonymous with `--open-read`).
+type Reader = Option<Extension<Caller>>;
+
+/// What `reader` may see under the server's read policy.
+fn read_scope<'a>(state: &AppState, reader: &'a Reader) -> ReadScope<'a> {
+    match reader {
+        Some(Extension(caller)) if state.config.private_reads => match caller.role {
+            crate::TokenRole::User => ReadScope::User(&caller.name),
+            crate::TokenRole::Worker => ReadScope::Worker(&caller.name),
+        },
+        _ => ReadScope::All,
+    }
+}
+
+/// With private reads, a user reads only what it owns (403 otherwise).
+fn check_owner(
+    state: &AppState,
+    reader: &Reader,
+    owner: Option<&str>,
+    what: &str,
+) -> Result<(), AppError> {
+    match read_scope(state, reader) {
+        ReadScope::All => Ok(()),
+        ReadScope::User(name) if owner == Some(name) => Ok(()),
+        _ => Err(AppError::Forbidden(format!(
+            "{what} belongs to another user; this server keeps reads private"
+        ))),
+    }
+}
+
+/// [`check_owner`] for a batch, looked up by id (404 if it does not exist).
+async fn check_batch_owner(state: &AppState, reader: &Reader, id: Uuid) -> Result<(), AppError> {
+    if read_scope(state, reader) == ReadScope::All {
+        return Ok(());
+    }
+    let owner = state
+        .db
+        .batch_owner(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
+    check_owner(state, reader, owner.as_deref(), &format!("batch {id}"))
+}
+
+fn owner_filter<'a>(state: &AppState, reader: &'a Reader) -> Option<&'a str> {
+    match read_scope(state, reader) {
+        ReadScope::User(name) => Some(name),
+        _ => None,
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -233,8 +321,16 @@ struct FormatQuery {
     format: Option<String>,
 }
 
+/// 200 when the database answers reads and commits a write through the writer; 503 otherwise
+/// (and while the last real write failed for a storage reason such as a full disk).
 async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError> {
-    state.db.ping().await?;
+    state.db.ping().await.map_err(|err| match err {
+        crate::db::DbError::Unavailable(message) => AppError::Unavailable(message),
+        other => {
+            tracing::warn!(error = %other, "health check failed");
+            AppError::Unavailable("the database is not writable".into())
+        }
+    })?;
     Ok(Json(Health {
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
@@ -274,7 +370,7 @@ async fn create_batch(
         .await
         .map_err(|err| AppError::Internal(format!("planning task: {err}")))??;
     let id = state.db.insert_batch(&plan, &caller.name).await?;
-    state.jobs_available.notify_waiters();
+    orchestrate::jobs_available(&state);
     tracing::info!(batch = %id, runs = plan.runs.len(), "batch submitted");
     Ok((
         StatusCode::CREATED,
@@ -285,15 +381,20 @@ async fn create_batch(
     ))
 }
 
-async fn list_batches(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
-    Ok(Json(state.db.list_batches(BATCH_LIST_LIMIT).await?))
+async fn list_batches(
+    State(state): State<AppState>,
+    reader: Reader,
+) -> Result<impl IntoResponse, AppError> {
+    let owner = owner_filter(&state, &reader);
+    Ok(Json(state.db.list_batches(BATCH_LIST_LIMIT, owner).await?))
 }
 
 async fn batch_status(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    reader: Reader,
+    PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
+    check_batch_owner(&state, &reader, id).await?;
     let status = state
         .db
         .batch_status(id)
@@ -304,10 +405,11 @@ async fn batch_status(
 
 async fn batch_runs(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    reader: Reader,
+    PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
+    check_batch_owner(&state, &reader, id).await?;
     let (factor_names, runs) = state
         .db
         .list_runs(id)
@@ -329,9 +431,8 @@ async fn batch_runs(
 async fn cancel_batch(
     State(state): State<AppState>,
     caller: Caller,
-    Path(raw_id): Path<String>,
+    PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
     match state.db.cancel_batch(id, &caller.name).await? {
         None => Err(AppError::NotFound(format!("batch {id} not found"))),
         Some(BatchState::Completed) => {
@@ -343,10 +444,7 @@ async fn cancel_batch(
                 .batch_status(id)
                 .await?
                 .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
-            // A campaign waiting on this batch stops and says why.
-            if let Err(err) = campaigns::advance_after_batch(&state, id).await {
-                tracing::error!(batch = %id, error = %err, "campaign could not record the cancel");
-            }
+            orchestrate::batch_cancelled(&state, id).await;
             Ok(Json(status))
         }
     }
@@ -354,10 +452,11 @@ async fn cancel_batch(
 
 async fn batch_analysis(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    reader: Reader,
+    PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let id = parse_id(&raw_id, "batch")?;
+    check_batch_owner(&state, &reader, id).await?;
     let view = match state.db.analysis(id).await? {
         Some(view) => view,
         None => {
@@ -368,7 +467,9 @@ async fn batch_analysis(
                 .await?
                 .ok_or_else(|| AppError::NotFound(format!("batch {id} not found")))?;
             match input.state {
-                BatchState::Completed => compute_and_store_analysis(&state, id).await?,
+                BatchState::Completed => {
+                    orchestrate::compute_and_store_analysis(&state, id).await?
+                }
                 BatchState::Active => {
                     return Err(AppError::Conflict(format!(
                         "batch {id} is still running; the analysis is computed when its last \
@@ -396,42 +497,6 @@ async fn batch_analysis(
     }
 }
 
-/// Fits the batch and stores the result unless another task already did.
-async fn compute_and_store_analysis(
-    state: &AppState,
-    batch_id: Uuid,
-) -> Result<repose_api::AnalysisView, AppError> {
-    let input = state
-        .db
-        .analysis_input(batch_id)
-        .await?
-        .ok_or_else(|| AppError::NotFound(format!("batch {batch_id} not found")))?;
-    let view = tokio::task::spawn_blocking(move || analysis::analyse(&input))
-        .await
-        .map_err(|err| AppError::Internal(format!("analysis task: {err}")))?;
-    state.db.store_analysis(&view).await
-}
-
-/// Runs the analysis of freshly finished batches in the background so the worker that
-/// delivered the last result is answered at once.
-fn analyse_in_background(state: &AppState, batches: Vec<Uuid>) {
-    for batch_id in batches {
-        let state = state.clone();
-        tokio::spawn(async move {
-            match compute_and_store_analysis(&state, batch_id).await {
-                Ok(view) => {
-                    tracing::info!(batch = %batch_id, error = ?view.error, "batch analysed")
-                }
-                Err(err) => tracing::error!(batch = %batch_id, error = %err, "analysis failed"),
-            }
-            // A campaign's next stage is generated from this batch.
-            if let Err(err) = campaigns::advance_after_batch(&state, batch_id).await {
-                tracing::error!(batch = %batch_id, error = %err, "campaign could not advance");
-            }
-        });
-    }
-}
-
 async fn list_workers(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
     Ok(Json(state.db.list_workers(WORKER_LIST_LIMIT).await?))
 }
@@ -447,6 +512,7 @@ struct JobsQuery {
 /// `?batch=<id>`, `?limit=` (default 100, at most 10 000).
 async fn list_jobs(
     State(state): State<AppState>,
+    reader: Reader,
     Query(query): Query<JobsQuery>,
 ) -> Result<impl IntoResponse, AppError> {
     let status = query
@@ -477,14 +543,21 @@ async fn list_jobs(
             "limit must be between 1 and {JOB_LIST_MAX}"
         )));
     }
-    Ok(Json(state.db.list_jobs(status, batch, limit).await?))
+    let scope = read_scope(&state, &reader);
+    Ok(Json(state.db.list_jobs(status, batch, limit, scope).await?))
 }
 
 async fn register_worker(
     State(state): State<AppState>,
+    caller: Caller,
     ValidJson(registration): ValidJson<WorkerRegistration>,
 ) -> Result<impl IntoResponse, AppError> {
-    state.db.register_worker(&registration).await?;
+    submit::check_name_length("host", &registration.host)?;
+    submit::check_name_length("version", &registration.version)?;
+    state
+        .db
+        .register_worker(&registration, &caller.name)
+        .await?;
     tracing::info!(worker = %registration.instance_id, host = %registration.host, "worker registered");
     Ok(Json(WorkerRegistered {
         worker_id: registration.instance_id,
@@ -495,12 +568,19 @@ async fn register_worker(
 /// Leases a job, waiting up to `wait_s` for one; 204 when none arrives in time.
 async fn claim_job(
     State(state): State<AppState>,
+    caller: Caller,
     ValidJson(request): ValidJson<ClaimRequest>,
 ) -> Result<Response, AppError> {
     if !(request.wait_s.is_finite() && request.wait_s >= 0.0) {
         return Err(AppError::invalid("wait_s", "must be a non-negative number"));
     }
-    let wait = Duration::from_secs_f64(request.wait_s).min(state.config.max_claim_wait);
+    // Clamped before converting: any finite wait is allowed, and waits at most the maximum.
+    let wait = Duration::try_from_secs_f64(
+        request
+            .wait_s
+            .min(state.config.max_claim_wait.as_secs_f64()),
+    )
+    .unwrap_or(state.config.max_claim_wait);
     let deadline = Instant::now() + wait;
     let mut shutdown = state.shutdown.clone();
     loop {
@@ -515,11 +595,12 @@ async fn claim_job(
             .db
             .claim(
                 request.worker_id,
+                &caller.name,
                 state.config.lease,
                 state.config.max_attempts,
             )
             .await?;
-        analyse_in_background(&state, finished);
+        orchestrate::batches_finished(&state, finished);
         if let Some(job) = claimed {
             state.metrics.claimed(started.elapsed());
             tracing::debug!(job = %job.job_id, worker = %request.worker_id, "job leased");
@@ -541,10 +622,9 @@ async fn claim_job(
 
 async fn heartbeat(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(beat): ValidJson<Heartbeat>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
     if !beat.progress.is_finite() {
         return Err(AppError::invalid("progress", "must be a number in 0..1"));
     }
@@ -560,24 +640,29 @@ async fn heartbeat(
 
 async fn complete_job(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(completion): ValidJson<Completion>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
+    check_completion_sizes(&completion)?;
     let update = state
         .db
         .complete(job_id, completion.lease_token, &completion)
         .await?;
     state.metrics.completed();
-    Ok(after_update(&state, job_id, update))
+    Ok(orchestrate::job_updated(&state, job_id, update))
 }
 
 async fn fail_job(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(failure): ValidJson<Failure>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
+    if failure.error.len() > MAX_ERROR_BYTES {
+        return Err(AppError::invalid(
+            "error",
+            format!("at most {MAX_ERROR_BYTES} bytes of error text"),
+        ));
+    }
     let update = state
         .db
         .fail(
@@ -595,32 +680,50 @@ async fn fail_job(
         .await?;
     state.metrics.failed();
     tracing::warn!(job = %job_id, error = %failure.error, status = ?update.status, "job failed");
-    Ok(after_update(&state, job_id, update))
+    Ok(orchestrate::job_updated(&state, job_id, update))
 }
 
 async fn release_job(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    PathId(job_id): PathId,
     ValidJson(release): ValidJson<Release>,
 ) -> Result<impl IntoResponse, AppError> {
-    let job_id = parse_id(&raw_id, "job")?;
     let update = state.db.release(job_id, release.lease_token).await?;
     state.metrics.released();
-    Ok(after_update(&state, job_id, update))
+    Ok(orchestrate::job_updated(&state, job_id, update))
 }
 
-/// Wakes waiting claims and starts the analysis as the update requires.
-fn after_update(state: &AppState, job_id: Uuid, update: JobUpdate) -> Json<JobUpdateResponse> {
-    if update.requeued {
-        state.jobs_available.notify_waiters();
+/// Bounds every free-form part of a result, naming the field that is too large.
+fn check_completion_sizes(completion: &Completion) -> Result<(), AppError> {
+    if completion.metrics.len() > MAX_METRICS {
+        return Err(AppError::invalid(
+            "metrics",
+            format!("at most {MAX_METRICS} metrics"),
+        ));
     }
-    if update.batch_finished {
-        tracing::info!(job = %job_id, "last run of a batch finished");
-        analyse_in_background(state, vec![update.batch_id]);
+    for name in completion.metrics.keys() {
+        submit::check_name_length("metrics", name)?;
     }
-    Json(JobUpdateResponse {
-        status: update.status,
-    })
+    if let Some(version) = &completion.engine_version {
+        submit::check_name_length("engine_version", version)?;
+    }
+    let details = serde_json::to_string(&completion.details)?;
+    if details.len() > MAX_DETAILS_BYTES {
+        return Err(AppError::invalid(
+            "details",
+            format!("at most {MAX_DETAILS_BYTES} bytes of details"),
+        ));
+    }
+    for (name, picture) in &completion.pictures {
+        submit::check_name_length("pictures", name)?;
+        if picture.len() > MAX_PICTURE_BYTES {
+            return Err(AppError::invalid(
+                format!("pictures.{name}"),
+                format!("at most {MAX_PICTURE_BYTES} bytes per picture"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The run table as CSV: one column per factor (natural units), per metric and the bookkeeping.
@@ -705,8 +808,12 @@ async fn create_campaign(
     ))
 }
 
-async fn list_campaigns(State(state): State<AppState>) -> Result<impl IntoResponse, AppError> {
-    let records = state.db.list_campaigns(CAMPAIGN_LIST_LIMIT).await?;
+async fn list_campaigns(
+    State(state): State<AppState>,
+    reader: Reader,
+) -> Result<impl IntoResponse, AppError> {
+    let owner = owner_filter(&state, &reader);
+    let records = state.db.list_campaigns(CAMPAIGN_LIST_LIMIT, owner).await?;
     Ok(Json(
         records
             .iter()
@@ -729,14 +836,20 @@ fn campaign_summary(record: &crate::db::CampaignRecord) -> CampaignSummary {
 
 async fn campaign_status(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    reader: Reader,
+    PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let id = parse_id(&raw_id, "campaign")?;
     let record = state
         .db
         .campaign(id)
         .await?
         .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    check_owner(
+        &state,
+        &reader,
+        record.owner.as_deref(),
+        &format!("campaign {id}"),
+    )?;
     let campaign = campaigns::decode(&record)?;
     let mut batch_list = Vec::new();
     for (index, batch_id) in record.batch_ids.iter().enumerate() {
@@ -787,15 +900,21 @@ async fn campaign_status(
 /// The campaign report: a self-contained HTML page, or `?format=json`.
 async fn campaign_report(
     State(state): State<AppState>,
-    Path(raw_id): Path<String>,
+    reader: Reader,
+    PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let id = parse_id(&raw_id, "campaign")?;
     let record = state
         .db
         .campaign(id)
         .await?
         .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    check_owner(
+        &state,
+        &reader,
+        record.owner.as_deref(),
+        &format!("campaign {id}"),
+    )?;
     let campaign = campaigns::decode(&record)?;
     let results = campaigns::stage_results(&state, &record).await?;
     let pictures = campaigns::report_pictures(&state, &campaign, &record).await?;

@@ -18,6 +18,94 @@ use crate::error::AppError;
 /// More runs than this in one batch is almost certainly a mistake (and a large transaction).
 pub const MAX_RUNS_PER_BATCH: usize = 10_000;
 
+/// Longest accepted name (batch, factor, response, experiment kind), in bytes.
+pub const MAX_NAME_BYTES: usize = 200;
+
+/// Most factors in one batch (a full factorial of more would exceed the run limit anyway).
+pub const MAX_FACTORS: usize = 64;
+
+/// The number of design points `request` asks for, computed without building the design, or
+/// `None` when the design type decides it from the points given (explicit) or the factor
+/// count is unsupported (the design builder reports that). Saturates instead of overflowing.
+fn design_point_count(request: &DesignRequest, k: usize) -> Option<(u128, &'static str)> {
+    let k32 = u32::try_from(k).unwrap_or(u32::MAX);
+    match request {
+        DesignRequest::Factorial => Some((2u128.checked_pow(k32).unwrap_or(u128::MAX), "factors")),
+        DesignRequest::PlackettBurman { runs } => runs.map(|runs| (runs as u128, "design.runs")),
+        DesignRequest::BoxBehnken { centre_points } => {
+            let edge: u128 = match k {
+                3 => 12,
+                4 => 24,
+                5 => 40,
+                6 => 48,
+                7 => 56,
+                _ => return None,
+            };
+            Some((
+                edge + centre_points.unwrap_or(0) as u128,
+                "design.centre_points",
+            ))
+        }
+        DesignRequest::CentralComposite { centre_points, .. } => {
+            let core = 2u128.checked_pow(k32.min(100)).unwrap_or(u128::MAX);
+            Some((
+                core.saturating_add(2 * k as u128)
+                    .saturating_add(*centre_points as u128),
+                "design.centre_points",
+            ))
+        }
+        DesignRequest::Explicit { points } => Some((points.len() as u128, "design.points")),
+    }
+}
+
+/// Refuses a design whose size exceeds [`MAX_RUNS_PER_BATCH`] before anything is allocated.
+fn check_design_size(request: &BatchRequest) -> Result<(), AppError> {
+    if request.replicates as usize > MAX_RUNS_PER_BATCH {
+        return Err(AppError::invalid(
+            "replicates",
+            format!("at most {MAX_RUNS_PER_BATCH} runs per batch"),
+        ));
+    }
+    let Some((points, field)) = design_point_count(&request.design, request.factors.len()) else {
+        return Ok(());
+    };
+    let total = points.saturating_mul(u128::from(request.replicates));
+    if points > MAX_RUNS_PER_BATCH as u128 {
+        return Err(AppError::invalid(
+            field,
+            format!(
+                "the design has {points} points, more than the limit of {MAX_RUNS_PER_BATCH} \
+                 runs per batch"
+            ),
+        ));
+    }
+    if total > MAX_RUNS_PER_BATCH as u128 {
+        return Err(AppError::invalid(
+            "replicates",
+            format!(
+                "{points} design points × {} replicates = {total} runs exceeds the limit of \
+                 {MAX_RUNS_PER_BATCH}",
+                request.replicates
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Refuses text fields longer than [`MAX_NAME_BYTES`], naming the field.
+pub fn check_name_length(field: &str, value: &str) -> Result<(), AppError> {
+    if value.len() > MAX_NAME_BYTES {
+        return Err(AppError::invalid(
+            field,
+            format!(
+                "is {} bytes long; at most {MAX_NAME_BYTES} are allowed",
+                value.len()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// One run ready to be stored.
 #[derive(Debug, Clone)]
 pub struct PlannedRun {
@@ -33,8 +121,6 @@ pub struct PlannedRun {
     pub natural: Vec<f64>,
     /// DEM seed, distinct for every run of the batch.
     pub seed: u64,
-    /// Experiment spec with the natural values written at the factor paths.
-    pub spec: Value,
 }
 
 /// A validated submission.
@@ -48,6 +134,8 @@ pub struct PlannedBatch {
     pub design_kind: DesignKind,
     /// Seed the run order and run seeds derive from.
     pub base_seed: u64,
+    /// The complete experiment spec before factor values are written in (stored once).
+    pub template: Value,
     /// The runs, in claim order.
     pub runs: Vec<PlannedRun>,
 }
@@ -81,6 +169,21 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     if request.replicates == 0 {
         return Err(AppError::invalid("replicates", "must be at least 1"));
     }
+    check_name_length("name", &request.name)?;
+    check_name_length("experiment.kind", &request.experiment.kind)?;
+    check_name_length("response", &request.response)?;
+    if request.factors.len() > MAX_FACTORS {
+        return Err(AppError::invalid(
+            "factors",
+            format!("at most {MAX_FACTORS} factors per batch"),
+        ));
+    }
+    for (i, factor) in request.factors.iter().enumerate() {
+        check_name_length(&format!("factors[{i}].name"), &factor.name)?;
+        check_name_length(&format!("factors[{i}].path"), &factor.path)?;
+    }
+    // Before the design is built: `centre_points: 1e12` must not allocate terabytes.
+    check_design_size(&request)?;
     let template = prepare_template(&request)?;
     let factors = validate_factors(&request, &template)?;
     let names: Vec<&str> = factors.iter().map(|f| f.name.as_str()).collect();
@@ -119,6 +222,18 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
                 .map(|(factor, &coded)| factor.to_natural(coded))
                 .collect::<Result<Vec<f64>, DesignError>>()
                 .map_err(|err| design_error(err, &request.design))?;
+            // A range near f64::MAX overflows to infinity at the corners or star points; such
+            // a spec would be stored with nulls and could never be read back.
+            if let Some(i) = natural.iter().position(|value| !value.is_finite()) {
+                return Err(AppError::invalid(
+                    format!("factors[{i}]"),
+                    format!(
+                        "the design's coded value {} of factor `{}` is {} in natural units; \
+                         the range is too wide to represent",
+                        run.coded[i], request.factors[i].name, natural[i]
+                    ),
+                ));
+            }
             let spec = apply_factor_values(
                 &template,
                 request
@@ -136,7 +251,6 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
                 coded: run.coded,
                 natural,
                 seed: run.seed,
-                spec,
             })
         })
         .collect::<Result<Vec<_>, AppError>>()?;
@@ -146,6 +260,7 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
         design_kind: design.kind(),
         base_seed,
         runs,
+        template,
         request,
     })
 }
@@ -388,12 +503,17 @@ mod tests {
         seeds.dedup();
         assert_eq!(seeds.len(), 8);
         for run in &plan.runs {
-            let friction = &run.spec["soil_soil"]["static_friction"];
+            // The stored form: the batch's template plus the run's natural values.
+            let paths = ["soil_soil.static_friction", "soil_soil.restitution"];
+            let spec =
+                apply_factor_values(&plan.template, paths.into_iter().zip(run.natural.clone()))
+                    .unwrap();
+            let friction = &spec["soil_soil"]["static_friction"];
             assert_eq!(friction.as_f64().unwrap(), run.natural[0]);
-            let restitution = &run.spec["soil_soil"]["restitution"];
+            let restitution = &spec["soil_soil"]["restitution"];
             assert_eq!(restitution.as_f64().unwrap(), run.natural[1]);
             assert_eq!(
-                run.spec["total_mass"],
+                spec["total_mass"],
                 json!(0.03),
                 "the fast preset fills the rest"
             );

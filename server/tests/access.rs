@@ -337,3 +337,71 @@ async fn workers_and_jobs_are_listed() {
     }
     server.stop().await;
 }
+
+/// `--private-reads`: a user reads only its own batches (another user's is 403 and missing from
+/// the list), anonymous reads are refused, and a worker token reads only its workers' jobs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn private_reads_keep_users_to_their_own_batches_and_workers_to_their_jobs() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |config| config.private_reads = true).await;
+    let other = create_token(&db, "someone-else", TokenRole::User)
+        .await
+        .unwrap();
+    let mine = server.submit(&factorial()).await;
+    let theirs: Value = {
+        let (status, body) = server
+            .post_as("/v1/batches", &factorial(), Some(&other))
+            .await;
+        assert_eq!(status, StatusCode::CREATED, "{body}");
+        body
+    };
+    let theirs = theirs["id"].as_str().unwrap().to_owned();
+
+    for path in ["", "/runs", "/analysis"] {
+        let (status, body) = server.get(&format!("/v1/batches/{theirs}{path}")).await;
+        assert_eq!(status, StatusCode::FORBIDDEN, "{path}: {body}");
+        let (status, _) = server
+            .get_as(&format!("/v1/batches/{theirs}{path}"), Some(&other))
+            .await;
+        assert_ne!(status, StatusCode::FORBIDDEN, "the owner reads {path}");
+    }
+    let (status, list) = server.get("/v1/batches").await;
+    assert_eq!(status, StatusCode::OK);
+    let ids: Vec<&str> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids, [mine.id.to_string()]);
+    let (status, _) = server.get_as("/v1/batches", None).await;
+    assert_eq!(status, StatusCode::UNAUTHORIZED);
+
+    // Workers: only GET /v1/jobs, and only the jobs of the workers their token registered.
+    let worker = server.register().await;
+    let job = server.claim(worker, 0.0).await.unwrap();
+    let (status, _) = server
+        .get_as(
+            &format!("/v1/batches/{}", mine.id),
+            Some(&server.worker_token),
+        )
+        .await;
+    assert_eq!(status, StatusCode::FORBIDDEN);
+    let (status, jobs) = server.get_as("/v1/jobs", Some(&server.worker_token)).await;
+    assert_eq!(status, StatusCode::OK, "{jobs}");
+    let listed: Vec<&str> = jobs
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(listed, [job.job_id.to_string()]);
+    // The other user sees only its own batch's jobs.
+    let (_, jobs) = server.get_as("/v1/jobs", Some(&other)).await;
+    assert!(jobs
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|j| j["batch_id"] == theirs.as_str()));
+    server.stop().await;
+}

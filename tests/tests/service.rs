@@ -142,6 +142,36 @@ fn the_server_killed_mid_batch_restarts_and_nothing_is_lost() {
     assert_eq!(analysis["runs_used"], 12);
 }
 
+/// A worker whose lease expired while it simulated (the server was down longer than the
+/// lease) gets 409 on its heartbeats; it keeps the simulation and delivers the result as a
+/// late one, which the server takes (no other result, batch still running): the run ends with
+/// one result from the first attempt instead of being simulated again.
+#[test]
+fn a_worker_delivers_its_result_late_after_its_lease_expired() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut service = Service::start(dir.path(), 1.0);
+    let batch = service.submit(&replay_batch(2, 6.0));
+    let worker = service.start_worker("late", &["--slots", "1"]);
+    service.wait_for(&batch, Duration::from_secs(60), |s| {
+        s["counts"]["running"].as_u64() == Some(1)
+    });
+    // Down for twice the lease: at restart the lease has expired and the timer reclaims it.
+    service.kill_wait_restart(1.0, Duration::from_secs(2));
+    let status = service.wait_finished(&batch, Duration::from_secs(120));
+    assert_eq!(status["counts"]["completed"], 2, "{status}");
+    let runs = runs(&service, &batch);
+    assert!(
+        runs.iter().all(|run| run["attempts"] == 1),
+        "every result came from its first attempt (none simulated again): {runs:?}\n{}",
+        worker.log_text()
+    );
+    let log = worker.log_text();
+    assert!(
+        log.contains("offered as a late result"),
+        "the heartbeat 409 path was taken: {log}"
+    );
+}
+
 #[test]
 fn sigterm_releases_the_running_job_without_counting_an_attempt() {
     let dir = tempfile::tempdir().unwrap();

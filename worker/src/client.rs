@@ -59,6 +59,9 @@ impl Client {
     pub fn new(server: &str, token: Option<String>) -> Result<Client, reqwest::Error> {
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(5))
+            // The server closes connections idle for its header-read timeout (30 s); dropping
+            // ours sooner avoids sending a request on a connection it is closing.
+            .pool_idle_timeout(Duration::from_secs(20))
             .build()?;
         Ok(Client {
             http,

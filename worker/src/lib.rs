@@ -159,7 +159,9 @@ pub async fn run(
             }
         }
     };
-    let lease = Duration::from_secs_f64(registered.lease_s.max(1.0));
+    // The server's value, clamped: never a panic on a strange number.
+    let lease = Duration::try_from_secs_f64(registered.lease_s.clamp(1.0, 86_400.0))
+        .unwrap_or(Duration::from_secs(60));
     tracing::info!(worker = %registered.worker_id, server = %config.server, slots = config.slots,
         threads = config.threads, "worker registered");
 
@@ -290,7 +292,8 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
     };
     // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
     if let Ok(Ok(outcome)) = &outcome {
-        let hold = Duration::from_secs_f64(outcome.hold_s);
+        let hold =
+            Duration::try_from_secs_f64(outcome.hold_s.clamp(0.0, 86_400.0)).unwrap_or_default();
         let deadline = tokio::time::Instant::now() + hold;
         while tokio::time::Instant::now() < deadline && !signals.cancel.load(Ordering::SeqCst) {
             tokio::time::sleep(Duration::from_millis(50).min(hold)).await;
@@ -376,16 +379,29 @@ async fn report_failure(
     .map_or(JobEnd::Abandoned, |()| JobEnd::Failed)
 }
 
+/// How long a stopping worker keeps trying to deliver a finished result.
+const DELIVERY_GRACE_AT_SHUTDOWN: Duration = Duration::from_secs(30);
+
 /// Sends a final report until the server answers. Transient errors are retried with back-off
-/// for as long as it takes, shutdown or not (the result is the expensive part); a 4xx answer
-/// ends the attempt (`Err`): the server has decided (e.g. another result won, 409).
+/// (the result is the expensive part) while the worker runs, and for at most
+/// [`DELIVERY_GRACE_AT_SHUTDOWN`] once it is asked to stop; a 4xx answer ends the attempt
+/// (`Err`): the server has decided (e.g. another result won, 409).
 async fn deliver<F, Fut>(context: &SlotContext, job_id: Uuid, what: &str, call: F) -> Result<(), ()>
 where
     F: Fn(Client) -> Fut,
     Fut: Future<Output = Result<repose_api::JobUpdateResponse, CallError>>,
 {
     let mut backoff = Backoff::new(context.config.max_backoff);
+    let mut stop = context.stop.clone();
+    let mut give_up_at: Option<tokio::time::Instant> = None;
     loop {
+        if give_up_at.is_none() && *stop.borrow() {
+            give_up_at = Some(tokio::time::Instant::now() + DELIVERY_GRACE_AT_SHUTDOWN);
+        }
+        if give_up_at.is_some_and(|at| tokio::time::Instant::now() >= at) {
+            tracing::error!(job = %job_id, "{what} not delivered before shutdown; giving up");
+            return Err(());
+        }
         match call(context.client.clone()).await {
             Ok(update) => {
                 tracing::info!(job = %job_id, status = ?update.status, "{what} accepted");
@@ -393,7 +409,24 @@ where
             }
             Err(e) if e.is_transient() => {
                 tracing::warn!(job = %job_id, error = %e, "{what} not delivered; keeping it and retrying");
-                tokio::time::sleep(backoff.next_delay()).await;
+                let delay = backoff.next_delay();
+                match give_up_at {
+                    // Stopping: retry until the grace runs out.
+                    Some(at) => {
+                        tokio::time::sleep_until(at.min(tokio::time::Instant::now() + delay)).await
+                    }
+                    // Running: a stop request starts the grace period early.
+                    None => {
+                        let sender_gone = tokio::select! {
+                            () = tokio::time::sleep(delay) => false,
+                            stopped = stop.wait_for(|s| *s) => stopped.is_err(),
+                        };
+                        // No stop sender any more: just wait out the delay.
+                        if sender_gone {
+                            tokio::time::sleep(delay).await;
+                        }
+                    }
+                }
             }
             Err(e) => {
                 tracing::warn!(job = %job_id, error = %e, "{what} refused");
@@ -427,8 +460,11 @@ async fn heartbeat_loop(
             }
             Ok(_) => {}
             Err(e) if e.is_lost_lease() => {
-                signals.lease_lost.store(true, Ordering::SeqCst);
-                signals.cancel.store(true, Ordering::SeqCst);
+                // The lease expired (or was never this worker's): stop renewing it but keep
+                // simulating. The server still takes the result as a late one if no other
+                // worker delivered first and the batch is still running; it says 409 if not.
+                tracing::warn!(job = %job_id, error = %e,
+                    "lease no longer renewable; the result will be offered as a late result");
                 return;
             }
             // Unreachable: keep simulating; the result will be re-sent until accepted, and a

@@ -153,6 +153,16 @@ impl Service {
         assert_eq!(url, self.url);
     }
 
+    /// Kills the server (SIGKILL), keeps it down for `down`, and starts it again on the same
+    /// port and database.
+    pub fn kill_wait_restart(&mut self, lease_s: f64, down: Duration) {
+        self.server.kill();
+        std::thread::sleep(down);
+        let (server, url, _) = start_server(&self.dir, &self.db, self.port, lease_s, "server-2");
+        self.server = server;
+        assert_eq!(url, self.url);
+    }
+
     /// Starts `repose worker` with the worker token; `name` names its log file.
     pub fn start_worker(&self, name: &str, extra: &[&str]) -> Proc {
         let (log, file) = log_file(&self.dir, name);

@@ -1,0 +1,216 @@
+//! Campaigns: the chain of batches is written here; decisions are made by `repose-campaign`.
+
+use super::*;
+
+/// A stored campaign.
+#[derive(Debug, Clone)]
+pub struct CampaignRecord {
+    pub id: Uuid,
+    pub name: String,
+    pub owner: Option<String>,
+    pub status: String,
+    pub stage: String,
+    /// The `repose_campaign::Campaign` document.
+    pub state: String,
+    pub batches_issued: i64,
+    pub created_at_ms: i64,
+    pub updated_at_ms: i64,
+    /// Batch ids in issue order.
+    pub batch_ids: Vec<Uuid>,
+}
+
+/// What a campaign advance writes.
+#[derive(Debug)]
+pub struct CampaignUpdate<'a> {
+    pub status: &'a str,
+    pub stage: &'a str,
+    pub state: String,
+    /// The next batch to issue, if any.
+    pub next: Option<&'a PlannedBatch>,
+}
+
+// Campaigns: the chain of batches is written here; decisions are made by `repose-campaign`.
+impl Db {
+    /// Stores a new campaign with its first batch, in one transaction; returns the batch id.
+    pub async fn insert_campaign(
+        &self,
+        id: Uuid,
+        name: &str,
+        owner: &str,
+        update: CampaignUpdate<'_>,
+    ) -> Result<Uuid, DbError> {
+        let now = now_ms();
+        let first = update
+            .next
+            .ok_or_else(|| DbError::Corrupt("a campaign starts with a batch".into()))?;
+        let mut tx = self.begin_write().await?;
+        let result: Result<Uuid, DbError> = async {
+            sqlx::query(
+                "INSERT INTO campaigns (id, name, owner, status, stage, state, batches_issued,
+                                        created_at, updated_at)
+                 VALUES (?, ?, ?, ?, ?, ?, 1, ?, ?)",
+            )
+            .bind(id.to_string())
+            .bind(name)
+            .bind(owner)
+            .bind(update.status)
+            .bind(update.stage)
+            .bind(&update.state)
+            .bind(now)
+            .bind(now)
+            .execute(&mut *tx)
+            .await?;
+            let batch_id = insert_batch_tx(&mut tx, first, owner).await?;
+            link_batch(&mut tx, batch_id, id, 0).await?;
+            Ok(batch_id)
+        }
+        .await;
+        tx.finish(result).await
+    }
+
+    /// Records a campaign step if nobody advanced it since `issued_before` batches were issued;
+    /// `Ok(None)` when someone did (nothing written). Returns the new batch's id, if one.
+    pub async fn advance_campaign(
+        &self,
+        id: Uuid,
+        issued_before: i64,
+        owner: Option<&str>,
+        update: CampaignUpdate<'_>,
+    ) -> Result<Option<Option<Uuid>>, DbError> {
+        let now = now_ms();
+        let mut tx = self.begin_write().await?;
+        let result: Result<Option<Option<Uuid>>, DbError> = async {
+            let issued_after = issued_before + i64::from(update.next.is_some());
+            let changed = sqlx::query(
+                "UPDATE campaigns SET status = ?, stage = ?, state = ?, batches_issued = ?,
+                                      updated_at = ?
+                 WHERE id = ? AND batches_issued = ?",
+            )
+            .bind(update.status)
+            .bind(update.stage)
+            .bind(&update.state)
+            .bind(issued_after)
+            .bind(now)
+            .bind(id.to_string())
+            .bind(issued_before)
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+            if changed != 1 {
+                return Ok(None);
+            }
+            let batch_id = match update.next {
+                Some(plan) => {
+                    let batch_id = insert_batch_tx(&mut tx, plan, owner.unwrap_or("")).await?;
+                    link_batch(&mut tx, batch_id, id, issued_before).await?;
+                    Some(batch_id)
+                }
+                None => None,
+            };
+            Ok(Some(batch_id))
+        }
+        .await;
+        tx.finish(result).await
+    }
+
+    /// The campaign a batch belongs to and the batch's position in it.
+    pub async fn campaign_of_batch(&self, batch_id: Uuid) -> Result<Option<(Uuid, i64)>, DbError> {
+        let row = sqlx::query(
+            "SELECT campaign_id, campaign_index FROM batches
+             WHERE id = ? AND campaign_id IS NOT NULL",
+        )
+        .bind(batch_id.to_string())
+        .fetch_optional(&self.reader)
+        .await?;
+        row.map(|row| -> Result<(Uuid, i64), DbError> {
+            Ok((
+                parse_uuid(&row.try_get::<String, _>("campaign_id")?)?,
+                row.try_get("campaign_index")?,
+            ))
+        })
+        .transpose()
+    }
+
+    /// One campaign with its batch ids.
+    pub async fn campaign(&self, id: Uuid) -> Result<Option<CampaignRecord>, DbError> {
+        let Some(row) = sqlx::query("SELECT * FROM campaigns WHERE id = ?")
+            .bind(id.to_string())
+            .fetch_optional(&self.reader)
+            .await?
+        else {
+            return Ok(None);
+        };
+        let batch_rows =
+            sqlx::query("SELECT id FROM batches WHERE campaign_id = ? ORDER BY campaign_index")
+                .bind(id.to_string())
+                .fetch_all(&self.reader)
+                .await?;
+        let batch_ids = batch_rows
+            .iter()
+            .map(|r| parse_uuid(&r.try_get::<String, _>("id")?))
+            .collect::<Result<Vec<_>, DbError>>()?;
+        Ok(Some(campaign_from_row(&row, batch_ids)?))
+    }
+
+    /// The newest campaigns (without their batch ids), newest first; only `owner`'s if given.
+    pub async fn list_campaigns(
+        &self,
+        limit: u32,
+        owner: Option<&str>,
+    ) -> Result<Vec<CampaignRecord>, DbError> {
+        let rows = sqlx::query(
+            "SELECT * FROM campaigns WHERE (?1 IS NULL OR owner = ?1)
+             ORDER BY created_at DESC LIMIT ?2",
+        )
+        .bind(owner)
+        .bind(i64::from(limit))
+        .fetch_all(&self.reader)
+        .await?;
+        rows.iter()
+            .map(|row| campaign_from_row(row, Vec::new()))
+            .collect()
+    }
+
+    /// Ids of the campaigns still running (resumed at start-up).
+    pub async fn running_campaigns(&self) -> Result<Vec<Uuid>, DbError> {
+        let rows = sqlx::query("SELECT id FROM campaigns WHERE status = 'running'")
+            .fetch_all(&self.reader)
+            .await?;
+        rows.iter()
+            .map(|r| parse_uuid(&r.try_get::<String, _>("id")?))
+            .collect()
+    }
+}
+
+pub(super) async fn link_batch(
+    tx: &mut WriteTx,
+    batch_id: Uuid,
+    campaign_id: Uuid,
+    index: i64,
+) -> Result<(), DbError> {
+    sqlx::query("UPDATE batches SET campaign_id = ?, campaign_index = ? WHERE id = ?")
+        .bind(campaign_id.to_string())
+        .bind(index)
+        .bind(batch_id.to_string())
+        .execute(&mut **tx)
+        .await?;
+    Ok(())
+}
+
+pub(super) fn campaign_from_row(
+    row: &SqliteRow,
+    batch_ids: Vec<Uuid>,
+) -> Result<CampaignRecord, DbError> {
+    Ok(CampaignRecord {
+        id: parse_uuid(&row.try_get::<String, _>("id")?)?,
+        name: row.try_get("name")?,
+        owner: row.try_get("owner")?,
+        status: row.try_get("status")?,
+        stage: row.try_get("stage")?,
+        state: row.try_get("state")?,
+        batches_issued: row.try_get("batches_issued")?,
+        created_at_ms: row.try_get("created_at")?,
+        updated_at_ms: row.try_get("updated_at")?,
+        batch_ids,
+    })
+}
