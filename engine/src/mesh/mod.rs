@@ -436,19 +436,24 @@ impl TriMesh {
         self.merge_smooth(start, out);
     }
 
-    /// Largest distance of any vertex from the body origin (bounds how far a point of the
-    /// mesh moves when the body turns).
-    pub fn max_vertex_distance(&self) -> f64 {
+    /// The eight corners of [`TriMesh::aabb`], in the body frame.
+    pub fn aabb_corners(&self) -> [Vec3; 8] {
         let (lo, hi) = self.aabb();
-        (0..8)
-            .map(|corner| {
-                Vec3::new(
-                    if corner & 1 == 0 { lo.x } else { hi.x },
-                    if corner & 2 == 0 { lo.y } else { hi.y },
-                    if corner & 4 == 0 { lo.z } else { hi.z },
-                )
-                .norm()
-            })
+        std::array::from_fn(|corner| {
+            Vec3::new(
+                if corner & 1 == 0 { lo.x } else { hi.x },
+                if corner & 2 == 0 { lo.y } else { hi.y },
+                if corner & 4 == 0 { lo.z } else { hi.z },
+            )
+        })
+    }
+
+    /// An upper bound of any vertex's distance from the body origin (the farthest corner of
+    /// the bounding box): bounds how far a point of the mesh moves when the body turns.
+    pub fn max_vertex_distance(&self) -> f64 {
+        self.aabb_corners()
+            .iter()
+            .map(|c| c.norm())
             .fold(0.0, f64::max)
     }
 

@@ -183,26 +183,24 @@ pub(super) fn particle_contacts(
         while cursor < candidate_geometry.len() && candidate_geometry[cursor] == g as u32 {
             cursor += 1;
         }
-        if placement.cached {
-            if first == cursor {
-                continue;
-            }
-            mesh_contacts.clear();
-            let body_centre = placement.inverse.transform_point(&xi.into()).coords;
-            geometry.mesh.sphere_contacts_among(
-                body_centre,
-                ri,
-                &candidate_triangle[first..cursor],
-                mesh_contacts,
-            );
+        let candidates = &candidate_triangle[first..cursor];
+        let far = if placement.cached {
+            candidates.is_empty()
         } else {
             let reach = Vec3::repeat(ri);
             let (lo, hi) = (xi - reach, xi + reach);
-            if (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a]) {
-                continue;
-            }
-            mesh_contacts.clear();
-            let body_centre = placement.inverse.transform_point(&xi.into()).coords;
+            (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a])
+        };
+        if far {
+            continue;
+        }
+        mesh_contacts.clear();
+        let body_centre = placement.inverse.transform_point(&xi.into()).coords;
+        if placement.cached {
+            geometry
+                .mesh
+                .sphere_contacts_among(body_centre, ri, candidates, mesh_contacts);
+        } else {
             geometry
                 .mesh
                 .sphere_contacts(body_centre, ri, mesh_contacts);

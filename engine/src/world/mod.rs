@@ -505,6 +505,15 @@ mod tests {
     use crate::kinematics::Motion;
     use crate::material::{Interaction, MaterialSet};
 
+    /// `f` on a rayon pool of `threads` threads.
+    fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(f)
+    }
+
     /// A dense, frictional, falling cloud over a floor: 3000 particles (six chunks).
     fn cloud(rolling_model: RollingModel, integrator: Integrator) -> World {
         let interaction = Interaction {
@@ -605,11 +614,7 @@ mod tests {
         use crate::distribution::{SizeDistribution, SizeDistributionSpec};
         use crate::factory::{Factory, FactorySpec, Region};
         let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            on_threads(threads, || {
                 let mut world = cloud(
                     RollingModel::ConstantDirectionalTorque,
                     Integrator::SymplecticEuler,
@@ -668,11 +673,7 @@ mod tests {
             (RollingModel::epsd(), Integrator::VelocityVerlet),
         ] {
             let run = |threads: usize| {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
-                pool.install(|| {
+                on_threads(threads, || {
                     let mut world = cloud(rolling, integrator);
                     world.run(300);
                     let floor = world.geometry_series(GeometryId(0)).to_vec();

@@ -126,18 +126,11 @@ impl World {
 
 /// The world-frame bounding box of a mesh placed at `pose` (its body box's eight corners).
 pub(super) fn world_aabb(mesh: &TriMesh, pose: &Pose) -> (Vec3, Vec3) {
-    let (lo, hi) = mesh.aabb();
-    let mut aabb_min = Vec3::repeat(f64::INFINITY);
-    let mut aabb_max = Vec3::repeat(f64::NEG_INFINITY);
-    for corner in 0..8 {
-        let c = Vec3::new(
-            if corner & 1 == 0 { lo.x } else { hi.x },
-            if corner & 2 == 0 { lo.y } else { hi.y },
-            if corner & 4 == 0 { lo.z } else { hi.z },
-        );
-        let w = pose.transform_point(&c.into()).coords;
-        aabb_min = aabb_min.inf(&w);
-        aabb_max = aabb_max.sup(&w);
-    }
-    (aabb_min, aabb_max)
+    mesh.aabb_corners().iter().fold(
+        (Vec3::repeat(f64::INFINITY), Vec3::repeat(f64::NEG_INFINITY)),
+        |(lo, hi), c| {
+            let w = pose.transform_point(&(*c).into()).coords;
+            (lo.inf(&w), hi.sup(&w))
+        },
+    )
 }
