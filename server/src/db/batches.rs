@@ -333,7 +333,7 @@ pub(super) async fn insert_batch_tx(
             row.push_bind(Uuid::new_v4().to_string())
                 .push_bind(run_id)
                 .push_bind(&batch_text)
-                .push_bind("queued")
+                .push_bind(JobState::Queued.as_db())
                 .push_bind(0_i64)
                 .push_bind(now)
                 .push_bind(now);

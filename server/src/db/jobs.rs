@@ -676,6 +676,11 @@ pub(super) async fn fail_in(
         return Err(found.stale_conflict());
     }
     let dead = found.attempts >= i64::from(max_attempts);
+    let state = if dead {
+        JobState::Dead
+    } else {
+        JobState::Queued
+    };
     let exponent = u32::try_from(found.attempts.saturating_sub(1).clamp(0, 20)).unwrap_or(20);
     let retry_at = now.saturating_add(duration_ms(backoff).saturating_mul(1 << exponent));
     sqlx::query("UPDATE leases SET outcome = 'failed', ended_at = ? WHERE token = ?")
@@ -688,7 +693,7 @@ pub(super) async fn fail_in(
                          available_at = ?, last_error = ?, updated_at = ?
          WHERE id = ?",
     )
-    .bind(if dead { "dead" } else { "queued" })
+    .bind(state.as_db())
     .bind(retry_at)
     .bind(error)
     .bind(now)
@@ -699,11 +704,7 @@ pub(super) async fn fail_in(
 
     Ok(JobUpdate {
         batch_id: parse_uuid(&found.batch_id)?,
-        status: if dead {
-            RunState::Dead
-        } else {
-            RunState::Queued
-        },
+        status: state.into(),
         batch_finished,
         requeued: !dead,
     })
