@@ -22,15 +22,22 @@ pub(crate) const CHUNK: usize = 512;
 /// pair's histories are zero and its partner share is stale (not read), so a pair within the
 /// skin but not touching costs no writes.
 pub(crate) const IN_CONTACT: u32 = 1 << 31;
+/// Second bit of a [`PairList::partner`] entry: at the build the two particles were closest
+/// across a periodic face, so their separation needs the minimum image. Positions are wrapped
+/// into the box only at builds (between builds they move continuously), so a pair without this
+/// bit needs no image until the next build, and a non-periodic world never sets it.
+pub(crate) const WRAPS: u32 = 1 << 30;
 /// The particle index bits of a [`PairList::partner`] entry.
-pub(crate) const PARTNER_INDEX: u32 = !IN_CONTACT;
+pub(crate) const PARTNER_INDEX: u32 = !(IN_CONTACT | WRAPS);
 
 /// The simulation box. Particles leaving it through a non-periodic face are removed.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Domain {
     pub min: Vec3,
     pub max: Vec3,
-    /// Periodic in x and in y (z, the gravity direction, is never periodic).
+    /// Periodic in x and in y (z, the gravity direction, is never periodic). Positions are
+    /// wrapped into the box at each neighbour rebuild; between rebuilds a particle that crossed
+    /// a periodic face may sit up to half a skin outside it.
     pub periodic_x: bool,
     pub periodic_y: bool,
 }
@@ -381,17 +388,19 @@ pub(crate) fn build_pair_list(
                         if j <= i {
                             continue;
                         }
-                        let d = domain.minimum_image(positions[j] - pi);
+                        let raw = positions[j] - pi;
+                        let d = domain.minimum_image(raw);
                         let reach = ri + radius[j] + skin;
                         if d.norm_squared() < reach * reach {
-                            out.partner.push(j as u32);
+                            let wraps = if d == raw { 0 } else { WRAPS };
+                            out.partner.push(j as u32 | wraps);
                         }
                     }
                 }
-                out.partner[start..].sort_unstable();
+                out.partner[start..].sort_unstable_by_key(|&j| j & PARTNER_INDEX);
                 let old_i = index_at_build[i];
                 for k in start..out.partner.len() {
-                    let old_j = index_at_build[out.partner[k] as usize];
+                    let old_j = index_at_build[(out.partner[k] & PARTNER_INDEX) as usize];
                     let found = if old_i == NEW_PARTICLE || old_j == NEW_PARTICLE {
                         None
                     } else {

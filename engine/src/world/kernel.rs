@@ -85,16 +85,31 @@ pub(super) fn particle_contacts(
     let mut f = ctx.gravity * mi;
     let mut tq = Vec3::zeros();
     let mut moment = 0.0;
+    // The partner reads, cut to one length so that one bounds check covers them all.
+    let n = r.position.len();
+    let (position, velocity, angular_velocity, radius, mass, material) = (
+        &r.position[..n],
+        &r.velocity[..n],
+        &r.angular_velocity[..n],
+        &r.radius[..n],
+        &r.mass[..n],
+        &r.material[..n],
+    );
     for (local, entry) in partner.iter_mut().enumerate() {
         let j = (*entry & PARTNER_INDEX) as usize;
-        let rj = r.radius[j];
-        let d = domain.minimum_image(xi - r.position[j]);
+        let rj = radius[j];
+        let raw = xi - position[j];
+        let d = if *entry & WRAPS != 0 {
+            domain.minimum_image(raw)
+        } else {
+            raw
+        };
         let dist2 = d.norm_squared();
         let rsum = ri + rj;
         if dist2 >= rsum * rsum {
             // Not touching: histories are reset (only if set), the share is left stale.
             if *entry & IN_CONTACT != 0 {
-                *entry &= PARTNER_INDEX;
+                *entry &= !IN_CONTACT;
                 tangential[local] = Vec3::zeros();
                 if use_rolling_spring {
                     rolling[local] = Vec3::zeros();
@@ -110,12 +125,12 @@ pub(super) fn particle_contacts(
         // Contact point halfway through the overlap.
         let lever_i = ri - 0.5 * overlap;
         let lever_j = rj - 0.5 * overlap;
-        let wj = r.angular_velocity[j];
-        let relative_velocity = vi - r.velocity[j] - (wi * lever_i + wj * lever_j).cross(&normal);
-        let mj = r.mass[j];
+        let wj = angular_velocity[j];
+        let relative_velocity = vi - velocity[j] - (wi * lever_i + wj * lever_j).cross(&normal);
+        let mj = mass[j];
         let r_star = ri * rj / rsum;
         let m_star = mi * mj / (mi + mj);
-        let constants = materials.pair(mat_i, r.material[j]);
+        let constants = materials.pair(mat_i, material[j]);
         let contact = hertz_mindlin(
             constants,
             r_star,
@@ -321,8 +336,10 @@ pub(super) fn gather_particle(
         AfterForces::EulerUpdate => {
             *v += force * (dt / mass);
             *w += torque * (dt * inv_i);
-            *x = domain.wrap(*x + *v * dt);
-            let moved = domain.minimum_image(*x - double(position_at_build));
+            // No periodic wrap here: positions move continuously between builds (see
+            // `WRAPS`), and the rebuild wraps them.
+            *x += *v * dt;
+            let moved = *x - double(position_at_build);
             moved.norm_squared() > g.half_skin2 || domain.is_outside(*x)
         }
         AfterForces::HalfKick => {

@@ -56,6 +56,13 @@ impl World {
     pub(super) fn rebuild(&mut self, t: f64) {
         let domain = self.config.domain;
         let p = &mut self.particles;
+        // Positions move continuously between builds; they come back into the box here, and
+        // the new pair list marks the pairs closest across a periodic face (`WRAPS`).
+        if domain.periodic_x || domain.periodic_y {
+            for x in &mut p.position {
+                *x = domain.wrap(*x);
+            }
+        }
         let outside = p.position.iter().filter(|x| domain.is_outside(**x)).count();
         if outside > 0 {
             let keep: Vec<u32> = (0..p.len() as u32)
@@ -162,8 +169,8 @@ impl World {
                     let i = base + k;
                     v[k] += p.force[i] * (0.5 * dt / p.mass[i]);
                     w[k] += p.torque[i] * (0.5 * dt * p.inverse_inertia[i]);
-                    x[k] = domain.wrap(x[k] + v[k] * dt);
-                    let moved = domain.minimum_image(x[k] - double(p.position_at_build[i]));
+                    x[k] += v[k] * dt;
+                    let moved = x[k] - double(p.position_at_build[i]);
                     rebuild |= moved.norm_squared() > half_skin2 || domain.is_outside(x[k]);
                 }
                 rebuild
