@@ -7,7 +7,6 @@ use crate::contact::{epsd_rolling_stiffness, epsd_rolling_torque, hertz_mindlin}
 
 /// Step-constant inputs of the contact law.
 pub(super) struct ContactContext<'a> {
-    pub(super) t: f64,
     /// Spring time step (0 for the Verlet start-up evaluation).
     pub(super) dt: f64,
     pub(super) gravity: Vec3,
@@ -239,7 +238,11 @@ pub(super) fn particle_contacts(
             });
             history.normal = normal;
             let arm = point - xi;
-            let wall_velocity = geometry.motion.velocity_of_point(point, ctx.t);
+            // `Motion::velocity_of_point` with the step's velocities.
+            let wall_velocity = placement.linear_velocity
+                + placement
+                    .angular_velocity
+                    .cross(&(point - placement.reference_point));
             let relative_velocity = vi + wi.cross(&arm) - wall_velocity;
             let constants = materials.pair(mat_i, geometry.material);
             let contact = hertz_mindlin(

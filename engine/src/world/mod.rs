@@ -196,6 +196,9 @@ struct PlacedGeometry {
     inverse: Pose,
     aabb_min: Vec3,
     aabb_max: Vec3,
+    /// The motion's velocities and reference point at this evaluation's time (once per step,
+    /// not once per contact).
+    linear_velocity: Vec3,
     angular_velocity: Vec3,
     reference_point: Vec3,
     /// The particles' candidate triangles of this geometry are complete (it has not moved

@@ -7,12 +7,10 @@ use super::*;
 impl World {
     pub(super) fn contact_context<'a>(
         &'a self,
-        t: f64,
         spring_dt: f64,
         placed: &'a [PlacedGeometry],
     ) -> ContactContext<'a> {
         ContactContext {
-            t,
             dt: spring_dt,
             gravity: self.config.gravity,
             domain: self.config.domain,
@@ -44,14 +42,13 @@ impl World {
     /// chunk exactly as the parallel contact pass does) and whether a rebuild is needed.
     pub(super) fn fused_pass(
         &mut self,
-        t: f64,
         spring_dt: f64,
         placed: &[PlacedGeometry],
         after: AfterForces,
     ) -> (Vec<Vec<(Vec3, Vec3)>>, bool) {
         let mut particles = std::mem::take(&mut self.particles);
         let mut pairs = std::mem::take(&mut self.pairs);
-        let ctx = self.contact_context(t, spring_dt, placed);
+        let ctx = self.contact_context(spring_dt, placed);
         let gather = self.gather_context(after);
         let n = particles.len();
         let use_rolling_spring = !pairs.rolling.is_empty();
@@ -123,14 +120,13 @@ impl World {
     /// chunk, the (force, torque) each geometry received from that chunk's particles.
     pub(super) fn contact_pass(
         &mut self,
-        t: f64,
         spring_dt: f64,
         placed: &[PlacedGeometry],
     ) -> Vec<Vec<(Vec3, Vec3)>> {
         let mut particles = std::mem::take(&mut self.particles);
         let mut pairs = std::mem::take(&mut self.pairs);
         let mut rolling_moment = std::mem::take(&mut self.rolling_moment);
-        let ctx = self.contact_context(t, spring_dt, placed);
+        let ctx = self.contact_context(spring_dt, placed);
         let n = particles.len();
         let p = &mut particles;
         let first_pair = &pairs.first_pair;

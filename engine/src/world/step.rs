@@ -142,6 +142,7 @@ impl World {
                     pose,
                     aabb_min,
                     aabb_max,
+                    linear_velocity: geometry.motion.linear_velocity_at(t),
                     angular_velocity: geometry.motion.angular_velocity_at(t),
                     reference_point: geometry.motion.reference_point_at(t),
                     cached,
@@ -195,9 +196,9 @@ impl World {
         let n = self.particles.len();
         let (wall_loads, rebuild) =
             if rayon::current_num_threads() == 1 || n <= SEQUENTIAL_BELOW * CHUNK {
-                self.fused_pass(t, spring_dt, &placed, after)
+                self.fused_pass(spring_dt, &placed, after)
             } else {
-                let wall_loads = self.contact_pass(t, spring_dt, &placed);
+                let wall_loads = self.contact_pass(spring_dt, &placed);
                 (wall_loads, self.gather_pass(after))
             };
         if rebuild {
