@@ -36,6 +36,7 @@ mod submit;
 pub mod tokens;
 
 pub use auth::{Access, TokenRole};
+pub use db::{backup, BackupError, BackupReport};
 pub use error::AppError;
 pub use routes::{app, Endpoint, Verb, ENDPOINTS};
 pub use tokens::{create_token, list_tokens, revoke_token, TokenInfo};

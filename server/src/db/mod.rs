@@ -1,5 +1,6 @@
 //! All SQL of the server, by concern: [`batches`] (batches and runs), [`jobs`] (workers,
-//! claims, leases and job updates), [`campaigns`], [`tokens`], [`analyses`]; this file holds the
+//! claims, leases and job updates), [`campaigns`], [`tokens`], [`analyses`], [`backup`] (a
+//! consistent copy of a live database); this file holds the
 //! connection handling shared by all of them (the writer's [`WriteTx`], the health probe).
 //!
 //! SQLite in WAL mode with two pools: a single-connection *writer* pool, so write transactions
@@ -35,6 +36,7 @@ use crate::submit::PlannedBatch;
 use crate::tokens::TokenInfo;
 
 mod analyses;
+mod backup;
 mod batches;
 mod campaigns;
 mod error;
@@ -42,6 +44,7 @@ mod jobs;
 mod tokens;
 
 pub use analyses::AnalysisInput;
+pub use backup::{backup, BackupError, BackupReport};
 use batches::*;
 pub use campaigns::{CampaignRecord, CampaignUpdate};
 pub use error::DbError;
