@@ -166,6 +166,19 @@ async fn metrics_parse_and_count_what_happened() {
         0.0
     );
     assert_eq!(value(&samples, "repose_workers_active", None), 1.0);
+    let last_seen = value(&samples, "repose_worker_last_seen_timestamp_seconds", None);
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    assert!(
+        last_seen <= now && now - last_seen < 60.0,
+        "last seen {last_seen}, now {now}"
+    );
+    let bytes = value(&samples, "repose_database_bytes", None);
+    assert!(bytes >= 4096.0 && bytes % 512.0 == 0.0, "{bytes}");
+    assert_eq!(value(&samples, "repose_db_writes_failing", None), 0.0);
+    assert_eq!(value(&samples, "repose_db_write_failures_total", None), 0.0);
     assert_eq!(value(&samples, "repose_claims_total", None), 4.0);
     assert_eq!(value(&samples, "repose_completions_total", None), 3.0);
     assert_eq!(value(&samples, "repose_failures_total", None), 1.0);
@@ -214,6 +227,70 @@ async fn metrics_parse_and_count_what_happened() {
             Some(("class", "5xx"))
         ),
         0.0
+    );
+    server.stop().await;
+}
+
+async fn scrape(server: &TestServer) -> Vec<Sample> {
+    let response = server
+        .client
+        .get(server.url("/metrics"))
+        .bearer_auth(&server.user_token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), StatusCode::OK);
+    parse_exposition(&response.text().await.unwrap())
+}
+
+/// The alert rules of `deploy/prometheus/` rely on these: write failures while the disk is
+/// full, and a last-seen time of 0 before any worker registered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_show_failing_writes_and_when_a_worker_was_last_seen() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let samples = scrape(&server).await;
+    assert_eq!(
+        value(&samples, "repose_worker_last_seen_timestamp_seconds", None),
+        0.0
+    );
+    server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 30))
+        .await;
+    server.stop().await;
+
+    // One page of room: registration fits, then the "disk" is full.
+    let pages = std::fs::metadata(&db).unwrap().len() / 4096;
+    let server = TestServer::start(&db, |c| c.max_db_pages = Some(pages + 1)).await;
+    let worker = server.register().await;
+    let mut refused = 0;
+    for _ in 0..60 {
+        let (status, _) = server
+            .post(
+                "/v1/jobs/claim",
+                &json!({"worker_id": worker, "wait_s": 0.0}),
+            )
+            .await;
+        match status {
+            StatusCode::OK => {}
+            StatusCode::SERVICE_UNAVAILABLE => refused += 1,
+            other => panic!("claim answered {other}"),
+        }
+        if refused >= 2 {
+            break;
+        }
+    }
+    assert!(refused >= 2, "the database never filled up");
+    let samples = scrape(&server).await;
+    assert_eq!(value(&samples, "repose_db_writes_failing", None), 1.0);
+    assert!(value(&samples, "repose_db_write_failures_total", None) >= 2.0);
+    assert!(value(&samples, "repose_worker_last_seen_timestamp_seconds", None) > 0.0);
+    assert!(
+        value(
+            &samples,
+            "repose_http_responses_total",
+            Some(("class", "5xx"))
+        ) >= 2.0
     );
     server.stop().await;
 }

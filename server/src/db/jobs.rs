@@ -390,10 +390,16 @@ impl Db {
             found.sort();
         }
         let workers = sqlx::query(
-            "SELECT COUNT(*) AS registered, COALESCE(SUM(last_seen_at >= ?), 0) AS active
+            "SELECT COUNT(*) AS registered, COALESCE(SUM(last_seen_at >= ?), 0) AS active,
+                    MAX(last_seen_at) AS last_seen
              FROM workers",
         )
         .bind(now_ms() - duration_ms(lease))
+        .fetch_one(&self.reader)
+        .await?;
+        let database_bytes: i64 = sqlx::query_scalar(
+            "SELECT page_count * page_size FROM pragma_page_count(), pragma_page_size()",
+        )
         .fetch_one(&self.reader)
         .await?;
         Ok(Gauges {
@@ -401,6 +407,10 @@ impl Db {
             batches,
             workers_active: workers.try_get("active")?,
             workers_registered: workers.try_get("registered")?,
+            worker_last_seen_ms: workers.try_get("last_seen")?,
+            database_bytes,
+            write_failures: self.writer_health.failures.load(Ordering::Relaxed),
+            writes_failing: self.writer_health.failing().is_some(),
         })
     }
 }

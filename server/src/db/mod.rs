@@ -116,14 +116,17 @@ pub struct OpenOptions {
     pub max_pages: Option<u64>,
 }
 
-/// The most recent write failure, cleared by the next successful write transaction.
+/// The most recent write failure, cleared by the next successful write transaction, and how
+/// many write transactions failed since the server started.
 #[derive(Debug, Default)]
 struct WriterHealth {
     last_failure: Mutex<Option<String>>,
+    failures: std::sync::atomic::AtomicU64,
 }
 
 impl WriterHealth {
     fn record_failure(&self, err: &sqlx::Error) {
+        self.failures.fetch_add(1, Ordering::Relaxed);
         if let Ok(mut last) = self.last_failure.lock() {
             *last = Some(err.to_string());
         }
