@@ -294,3 +294,62 @@ async fn metrics_show_failing_writes_and_when_a_worker_was_last_seen() {
     );
     server.stop().await;
 }
+
+/// Every `repose_*` series that `deploy/prometheus/repose-alerts.yml` uses (name and `k="v"`
+/// label matchers) is exported by a live server, so an alert cannot watch a metric that does
+/// not exist.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_alert_rules_use_only_exported_metrics() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../deploy/prometheus/repose-alerts.yml");
+    let rules = std::fs::read_to_string(&path).unwrap();
+    let mut used: Vec<(String, Vec<(String, String)>)> = Vec::new();
+    let mut rest = rules.as_str();
+    while let Some(at) = rest.find("repose_") {
+        let tail = &rest[at..];
+        let end = tail
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(tail.len());
+        let name = tail[..end].to_owned();
+        let mut matchers = Vec::new();
+        if let Some(inner) = tail[end..].strip_prefix('{') {
+            let inner = &inner[..inner.find('}').expect("matchers end with }")];
+            for matcher in inner.split(',') {
+                if let Some((key, value)) = matcher.split_once('=') {
+                    if let Some(value) = value.trim().strip_prefix('"') {
+                        if !key.ends_with('!') && !value.starts_with('~') {
+                            let value = value.trim_end_matches('"');
+                            matchers.push((key.trim().to_owned(), value.to_owned()));
+                        }
+                    }
+                }
+            }
+        }
+        used.push((name, matchers));
+        rest = &tail[end..];
+    }
+    assert!(used.len() >= 6, "{used:?}");
+
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    server.register().await;
+    let samples = scrape(&server).await;
+    for (name, matchers) in &used {
+        let found = samples.iter().any(|(n, labels, _)| {
+            n == name
+                && matchers
+                    .iter()
+                    .all(|(k, v)| labels.get(k).map(String::as_str) == Some(v.as_str()))
+        });
+        // The job and instance labels are Prometheus's own, added at scrape time.
+        let prometheus_labels = matchers
+            .iter()
+            .all(|(k, _)| k == "job" || k == "instance");
+        assert!(
+            found || (prometheus_labels && samples.iter().any(|(n, _, _)| n == name)),
+            "{} uses {name}{matchers:?}, which /metrics does not export",
+            path.display()
+        );
+    }
+    server.stop().await;
+}
