@@ -156,8 +156,15 @@ async fn a_backup_refuses_its_own_database_and_files_that_are_not_repose_databas
     let err = backup(&missing, &dir.path().join("x.sqlite"))
         .await
         .unwrap_err();
-    assert!(matches!(err, BackupError::Open { .. }), "{err}");
+    assert!(matches!(err, BackupError::Missing(_)), "{err}");
     assert!(!missing.exists(), "a backup never creates its source");
+
+    let garbage = dir.path().join("garbage.sqlite");
+    std::fs::write(&garbage, vec![0x5a_u8; 8192]).unwrap();
+    let err = backup(&garbage, &dir.path().join("z.sqlite"))
+        .await
+        .unwrap_err();
+    assert!(matches!(err, BackupError::Open { .. }), "{err}");
 
     let other = dir.path().join("other.sqlite");
     std::fs::write(&other, b"").unwrap();

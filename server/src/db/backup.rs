@@ -27,14 +27,16 @@ pub struct BackupReport {
 /// Why a backup was not written.
 #[derive(Debug, thiserror::Error)]
 pub enum BackupError {
+    /// There is no file at the source path.
+    #[error("no database file at {0}")]
+    Missing(PathBuf),
     /// The source cannot be opened as an SQLite database.
-    #[error("opening {path}: {source}")]
+    #[error("opening {path}: {error}")]
     Open {
         /// The source file.
         path: PathBuf,
         /// SQLite's error.
-        #[source]
-        source: sqlx::Error,
+        error: sqlx::Error,
     },
     /// The source is an SQLite file but not a repose database (no migrations table).
     #[error("{0} is not a repose database (it has no schema migrations)")]
@@ -44,29 +46,31 @@ pub enum BackupError {
     SameFile(PathBuf),
     /// Writing the copy failed.
     #[error("copying the database: {0}")]
-    Copy(#[source] sqlx::Error),
+    Copy(sqlx::Error),
     /// The copy does not pass SQLite's integrity check.
     #[error("the copy failed its integrity check: {0}")]
     Integrity(String),
     /// A file operation (temporary file, sync, rename) failed.
-    #[error("{what}: {source}")]
+    #[error("{what}: {error}")]
     Io {
         /// What was being done.
         what: String,
         /// The error.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
 fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> BackupError {
     let what = what.into();
-    move |source| BackupError::Io { what, source }
+    move |error| BackupError::Io { what, error }
 }
 
 /// Copies the database at `source` to `out` (replacing `out` atomically if it exists) while a
 /// server may be using `source`. The source is opened read-only and never migrated or changed.
 pub async fn backup(source: &Path, out: &Path) -> Result<BackupReport, BackupError> {
+    if !source.is_file() {
+        return Err(BackupError::Missing(source.to_owned()));
+    }
     if let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize()) {
         if a == b {
             return Err(BackupError::SameFile(out.to_owned()));
@@ -79,9 +83,9 @@ pub async fn backup(source: &Path, out: &Path) -> Result<BackupReport, BackupErr
         .busy_timeout(BUSY_TIMEOUT)
         .connect()
         .await
-        .map_err(|source_err| BackupError::Open {
+        .map_err(|error| BackupError::Open {
             path: source.to_owned(),
-            source: source_err,
+            error,
         })?;
     let result = copy_into(&mut conn, source, out).await;
     let _ = conn.close().await;
@@ -99,9 +103,9 @@ async fn copy_into(
     .fetch_one(&mut *conn)
     .await
     .and_then(|row| row.try_get(0))
-    .map_err(|err| BackupError::Open {
+    .map_err(|error| BackupError::Open {
         path: source.to_owned(),
-        source: err,
+        error,
     })?;
     if has_migrations == 0 {
         return Err(BackupError::NotRepose(source.to_owned()));
@@ -140,7 +144,7 @@ async fn copy_into(
 async fn write_and_check(conn: &mut SqliteConnection, temp: &Path) -> Result<i64, BackupError> {
     let target = temp.to_str().ok_or_else(|| BackupError::Io {
         what: format!("the path {} is not UTF-8", temp.display()),
-        source: std::io::Error::from(std::io::ErrorKind::InvalidInput),
+        error: std::io::Error::from(std::io::ErrorKind::InvalidInput),
     })?;
     sqlx::query("VACUUM INTO ?")
         .bind(target)
