@@ -60,13 +60,11 @@ impl fmt::Display for ReleaseVersion {
 impl ReleaseVersion {
     /// This build's release.
     pub fn current() -> ReleaseVersion {
-        RELEASE
-            .parse()
-            .unwrap_or(ReleaseVersion {
-                major: 0,
-                minor: 0,
-                patch: 0,
-            })
+        RELEASE.parse().unwrap_or(ReleaseVersion {
+            major: 0,
+            minor: 0,
+            patch: 0,
+        })
     }
 
     /// Whether a worker of release `worker` may work for a server of this release.
@@ -137,12 +135,17 @@ mod tests {
                 patch: 3
             }
         );
-        for bad in ["", "1", "1.2", "1.2.3.4", "v1.2.3", "1..3", "1.2.x", "test", "+1.2.3"] {
+        for bad in [
+            "", "1", "1.2", "1.2.3.4", "v1.2.3", "1..3", "1.2.x", "test", "+1.2.3",
+        ] {
             let err = bad.parse::<ReleaseVersion>().unwrap_err();
             assert_eq!(err.0, bad);
         }
         assert!(ReleaseVersion::current() > release("0.0.0") || RELEASE == "0.0.0");
-        assert_eq!(ReleaseVersion::current().to_string(), RELEASE.split('-').next().unwrap());
+        assert_eq!(
+            ReleaseVersion::current().to_string(),
+            RELEASE.split('-').next().unwrap()
+        );
     }
 
     #[test]
@@ -150,14 +153,27 @@ mod tests {
         let server = release("0.4.2");
         assert!(check_worker_version(server, "0.4.0").is_ok());
         assert!(check_worker_version(server, "0.4.9-dev").is_ok());
-        let older = check_worker_version(server, "0.3.7").unwrap_err().to_string();
-        assert!(older.contains("0.3.7") && older.contains("0.4.2"), "{older}");
+        let older = check_worker_version(server, "0.3.7")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            older.contains("0.3.7") && older.contains("0.4.2"),
+            "{older}"
+        );
         assert!(older.contains("upgrade the worker"), "{older}");
-        let newer = check_worker_version(server, "0.5.0").unwrap_err().to_string();
-        assert!(newer.contains("0.5.0") && newer.contains("0.4.2"), "{newer}");
+        let newer = check_worker_version(server, "0.5.0")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            newer.contains("0.5.0") && newer.contains("0.4.2"),
+            "{newer}"
+        );
         assert!(newer.contains("upgrade the server"), "{newer}");
         assert!(check_worker_version(server, "1.4.2").is_err());
         let garbage = check_worker_version(server, "t").unwrap_err().to_string();
-        assert!(garbage.contains("`t`") && garbage.contains(RELEASE), "{garbage}");
+        assert!(
+            garbage.contains("`t`") && garbage.contains(RELEASE),
+            "{garbage}"
+        );
     }
 }

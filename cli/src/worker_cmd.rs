@@ -86,3 +86,35 @@ pub fn run_worker(args: &WorkerArgs) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        worker: WorkerArgs,
+    }
+
+    #[test]
+    fn exit_when_idle_is_checked_and_reaches_the_worker_config() {
+        let cli = Cli::try_parse_from(["repose", "--exit-when-idle", "90"]).unwrap();
+        let parsed = config(&cli.worker).unwrap();
+        assert_eq!(parsed.exit_when_idle, Some(Duration::from_secs(90)));
+        let cli = Cli::try_parse_from(["repose"]).unwrap();
+        assert_eq!(config_of(&cli).exit_when_idle, None);
+        for bad in ["0", "nan", "inf", "1e9"] {
+            let cli = Cli::try_parse_from(["repose", "--exit-when-idle", bad]).unwrap();
+            let err = config(&cli.worker).unwrap_err();
+            assert!(err.to_string().contains("--exit-when-idle"), "{bad}: {err}");
+        }
+        let cli = Cli::try_parse_from(["repose", "--exit-when-idle=-5"]).unwrap();
+        assert!(config(&cli.worker).is_err());
+    }
+
+    fn config_of(cli: &Cli) -> WorkerConfig {
+        config(&cli.worker).unwrap()
+    }
+}

@@ -46,7 +46,9 @@ async fn a_backup_taken_mid_batch_restores_to_a_server_that_finishes_the_batch()
     let out_dir = dir.path().join("backups");
     std::fs::create_dir(&out_dir).unwrap();
     let out = out_dir.join("repose-copy.sqlite");
-    let report = backup(&db, &out).await.expect("backup of the live database");
+    let report = backup(&db, &out)
+        .await
+        .expect("backup of the live database");
     assert_eq!(report.path, out);
     assert_eq!(report.bytes, std::fs::metadata(&out).unwrap().len());
     assert_eq!(report.migrations, migrations_in_tree());
@@ -98,7 +100,10 @@ async fn a_backup_taken_mid_batch_restores_to_a_server_that_finishes_the_batch()
         assert_eq!(run.status, RunState::Completed, "{run:?}");
         let old = earlier[&run.id];
         if old.status == RunState::Completed {
-            assert_eq!(run.metrics, old.metrics, "results before the backup are kept");
+            assert_eq!(
+                run.metrics, old.metrics,
+                "results before the backup are kept"
+            );
             assert_eq!(run.attempts, 1);
         } else if run.id == in_flight.run_id {
             assert_eq!(run.attempts, 2, "the in-flight run was leased again");
@@ -140,7 +145,10 @@ async fn a_backup_under_concurrent_writes_is_consistent_and_replaces_the_old_cop
     assert_eq!(counts.completed + counts.running + counts.queued, 40);
     let runs = restored.runs(batch.id).await;
     let with_result = runs.iter().filter(|r| r.metrics.is_some()).count() as u64;
-    assert_eq!(with_result, counts.completed, "every completed run has its result");
+    assert_eq!(
+        with_result, counts.completed,
+        "every completed run has its result"
+    );
     restored.stop().await;
 }
 

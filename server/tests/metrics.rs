@@ -342,9 +342,7 @@ async fn the_alert_rules_use_only_exported_metrics() {
                     .all(|(k, v)| labels.get(k).map(String::as_str) == Some(v.as_str()))
         });
         // The job and instance labels are Prometheus's own, added at scrape time.
-        let prometheus_labels = matchers
-            .iter()
-            .all(|(k, _)| k == "job" || k == "instance");
+        let prometheus_labels = matchers.iter().all(|(k, _)| k == "job" || k == "instance");
         assert!(
             found || (prometheus_labels && samples.iter().any(|(n, _, _)| n == name)),
             "{} uses {name}{matchers:?}, which /metrics does not export",

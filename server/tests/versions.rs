@@ -45,7 +45,11 @@ async fn registration_accepts_the_servers_major_minor_and_refuses_others_naming_
         let (status, body) = server
             .post("/v1/workers/register", &registration(&version))
             .await;
-        assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{version}: {body}");
+        assert_eq!(
+            status,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "{version}: {body}"
+        );
         assert_eq!(body["field"], "version", "{body}");
         let message = body["error"].as_str().unwrap();
         assert!(

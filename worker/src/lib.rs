@@ -269,8 +269,11 @@ impl SlotContext {
             .lock()
             .map_or(Duration::ZERO, |since| since.elapsed());
         if idle_for >= idle && !self.exited_idle.swap(true, Ordering::SeqCst) {
-            tracing::info!(slot, idle_s = idle_for.as_secs_f64(),
-                "no job for the idle limit (--exit-when-idle); stopping");
+            tracing::info!(
+                slot,
+                idle_s = idle_for.as_secs_f64(),
+                "no job for the idle limit (--exit-when-idle); stopping"
+            );
             self.stop_sender.send_replace(true);
         }
     }

@@ -91,12 +91,10 @@ async fn an_older_worker_is_refused_at_registration_and_exits_naming_both_versio
         .unwrap();
     let server = Server::start(&db, "127.0.0.1:0", bumped_minor()).await;
     let config = worker_config(&server.url, &token);
-    let outcome = tokio::time::timeout(
-        Duration::from_secs(20),
-        run(config, std::future::pending()),
-    )
-    .await
-    .expect("the worker gives up instead of retrying");
+    let outcome =
+        tokio::time::timeout(Duration::from_secs(20), run(config, std::future::pending()))
+            .await
+            .expect("the worker gives up instead of retrying");
     let Err(WorkerError::IncompatibleVersion(message)) = outcome else {
         panic!("expected a version refusal, got {outcome:?}");
     };
@@ -157,13 +155,11 @@ async fn exit_when_idle_stops_the_worker_once_the_queue_stays_empty() {
     config.slots = 2;
     config.exit_when_idle = Some(Duration::from_secs(1));
     let started = std::time::Instant::now();
-    let summary = tokio::time::timeout(
-        Duration::from_secs(60),
-        run(config, std::future::pending()),
-    )
-    .await
-    .expect("the idle worker exits by itself")
-    .unwrap();
+    let summary =
+        tokio::time::timeout(Duration::from_secs(60), run(config, std::future::pending()))
+            .await
+            .expect("the idle worker exits by itself")
+            .unwrap();
     let took = started.elapsed();
     assert_eq!(summary.completed, 3, "{summary:?}");
     assert_eq!(summary.released, 0, "{summary:?}");
@@ -174,11 +170,11 @@ async fn exit_when_idle_stops_the_worker_once_the_queue_stays_empty() {
 
     // Without the option, the worker keeps waiting.
     let config = worker_config(&server.url, &token);
-    let waiting = tokio::time::timeout(
-        Duration::from_secs(3),
-        run(config, std::future::pending()),
-    )
-    .await;
-    assert!(waiting.is_err(), "a worker without the idle exit keeps waiting");
+    let waiting =
+        tokio::time::timeout(Duration::from_secs(3), run(config, std::future::pending())).await;
+    assert!(
+        waiting.is_err(),
+        "a worker without the idle exit keeps waiting"
+    );
     server.stop().await;
 }
