@@ -10,8 +10,10 @@ use serde_json::Value;
 use uuid::Uuid;
 
 pub mod spec_path;
+pub mod version;
 
 pub use spec_path::{apply_factor_values, SpecPathError};
+pub use version::{check_worker_version, ReleaseVersion, VersionRefusal};
 
 /// The OpenAPI 3.0 document of the server's HTTP API (`api/openapi.json`, served at
 /// `GET /openapi.json`). Hand-written; the server's tests compare it with its route table and
@@ -384,7 +386,8 @@ pub struct WorkerRegistration {
     pub host: String,
     /// Threads the worker runs each simulation with.
     pub threads: u32,
-    /// Worker software version.
+    /// Worker software version (its release, `MAJOR.MINOR.PATCH`); the server accepts only
+    /// its own `MAJOR.MINOR` (see [`version`]).
     pub version: String,
 }
 

@@ -384,7 +384,7 @@ async fn fake_worker(
         instance_id: id,
         host: "bench".into(),
         threads: 1,
-        version: "bench".into(),
+        version: repose_api::version::RELEASE.into(),
     };
     let response = client
         .post(format!("{base}/v1/workers/register"))

@@ -3,6 +3,7 @@
 
 mod analyze;
 mod aor_cmd;
+mod backup_cmd;
 mod bench_cmd;
 mod client;
 mod design_cmd;
@@ -47,6 +48,8 @@ enum Command {
     Server(server_cmd::ServerArgs),
     /// Create, list and revoke the job server's access tokens (user and worker).
     Token(token_cmd::TokenArgs),
+    /// Copy the job server's database consistently while the server runs (see docs/operating.md).
+    Backup(backup_cmd::BackupArgs),
     /// Lease jobs from a job server and run them until Ctrl-C or SIGTERM.
     Worker(worker_cmd::WorkerArgs),
     /// Start a server and local workers on an SQLite file; optionally submit and follow batches.
@@ -82,6 +85,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench_cmd::run(&args),
         Command::Server(args) => server_cmd::run(&args),
         Command::Token(args) => token_cmd::run(&args),
+        Command::Backup(args) => backup_cmd::run(&args),
         Command::Aor(args) => aor_cmd::run(&args),
         Command::Drill(args) => drill_cmd::run(&args),
         Command::Worker(args) => worker_cmd::run_worker(&args),

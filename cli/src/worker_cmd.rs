@@ -1,9 +1,14 @@
-//! `repose worker`: leases jobs from a job server and runs them until Ctrl-C or SIGTERM.
+//! `repose worker`: leases jobs from a job server and runs them until Ctrl-C or SIGTERM (or,
+//! with `--exit-when-idle`, until the queue stays empty).
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use repose_worker::{run, WorkerConfig};
 use std::path::PathBuf;
+use std::time::Duration;
+
+/// Longest accepted `--exit-when-idle`: a week.
+const MAX_IDLE_S: f64 = 7.0 * 86_400.0;
 
 #[derive(Debug, Args)]
 pub struct WorkerArgs {
@@ -26,6 +31,10 @@ pub struct WorkerArgs {
     /// (may be shared by several workers on one machine).
     #[arg(long, env = "REPOSE_BED_CACHE", value_name = "DIR")]
     pub bed_cache: Option<PathBuf>,
+    /// Exit (status 0) once no job was available for SECONDS, e.g. so a batch-scheduler task
+    /// ends when the queue is empty instead of holding its allocation. Default: wait forever.
+    #[arg(long, env = "REPOSE_EXIT_WHEN_IDLE", value_name = "SECONDS")]
+    pub exit_when_idle: Option<f64>,
 }
 
 /// The validated worker configuration.
@@ -45,7 +54,13 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
         Some(t) => t,
         None => (cores / args.slots).max(1),
     };
+    let exit_when_idle = match args.exit_when_idle {
+        None => None,
+        Some(s) if s.is_finite() && s > 0.0 && s <= MAX_IDLE_S => Some(Duration::from_secs_f64(s)),
+        Some(s) => bail!("--exit-when-idle must be between 0 and {MAX_IDLE_S} seconds, got {s}"),
+    };
     let mut config = WorkerConfig::new(args.server.clone());
+    config.exit_when_idle = exit_when_idle;
     config.token = args.token.clone();
     config.slots = args.slots;
     config.threads = threads;
@@ -58,10 +73,48 @@ pub fn run_worker(args: &WorkerArgs) -> Result<()> {
     let config = config(args)?;
     crate::init_logging("info");
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
-    runtime.block_on(async move {
+    let summary = runtime.block_on(async move {
         run(config, crate::server_cmd::shutdown_signal())
             .await
             .context("worker failed")
     })?;
+    if summary.exited_idle {
+        eprintln!(
+            "no job for the idle limit; exiting after {} completed, {} failed",
+            summary.completed, summary.failed
+        );
+    }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        worker: WorkerArgs,
+    }
+
+    #[test]
+    fn exit_when_idle_is_checked_and_reaches_the_worker_config() {
+        let cli = Cli::try_parse_from(["repose", "--exit-when-idle", "90"]).unwrap();
+        let parsed = config(&cli.worker).unwrap();
+        assert_eq!(parsed.exit_when_idle, Some(Duration::from_secs(90)));
+        let cli = Cli::try_parse_from(["repose"]).unwrap();
+        assert_eq!(config_of(&cli).exit_when_idle, None);
+        for bad in ["0", "nan", "inf", "1e9"] {
+            let cli = Cli::try_parse_from(["repose", "--exit-when-idle", bad]).unwrap();
+            let err = config(&cli.worker).unwrap_err();
+            assert!(err.to_string().contains("--exit-when-idle"), "{bad}: {err}");
+        }
+        let cli = Cli::try_parse_from(["repose", "--exit-when-idle=-5"]).unwrap();
+        assert!(config(&cli.worker).is_err());
+    }
+
+    fn config_of(cli: &Cli) -> WorkerConfig {
+        config(&cli.worker).unwrap()
+    }
 }

@@ -36,6 +36,7 @@ mod submit;
 pub mod tokens;
 
 pub use auth::{Access, TokenRole};
+pub use db::{backup, BackupError, BackupReport};
 pub use error::AppError;
 pub use routes::{app, Endpoint, Verb, ENDPOINTS};
 pub use tokens::{create_token, list_tokens, revoke_token, TokenInfo};
@@ -76,6 +77,10 @@ pub struct Config {
     pub shutdown_grace: Duration,
     /// How often expired leases are returned to the queue even when no worker claims.
     pub reclaim_interval: Duration,
+    /// The release this server reports (`/healthz`) and accepts workers of (same
+    /// `MAJOR.MINOR`, see [`repose_api::version`]). Always this build's release, except in
+    /// tests that pretend an upgrade.
+    pub release: repose_api::ReleaseVersion,
 }
 
 impl Config {
@@ -97,6 +102,7 @@ impl Config {
             header_read_timeout: Duration::from_secs(30),
             shutdown_grace: Duration::from_secs(10),
             reclaim_interval: Duration::from_secs(1),
+            release: repose_api::ReleaseVersion::current(),
         }
     }
 }

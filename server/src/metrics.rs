@@ -1,8 +1,10 @@
 //! `GET /metrics`: Prometheus text exposition format (version 0.0.4).
 //!
 //! Counters and the claim-latency histogram live in memory (since the process started); the
-//! gauges (jobs and batches by state, workers seen within one lease period) are read from the
-//! database at scrape time.
+//! gauges (jobs and batches by state, workers seen within one lease period, the last time any
+//! worker was seen, the database's size) are read from the database at scrape time, and the
+//! writer's health (write failures) from the database handle. `deploy/prometheus/` has a
+//! scrape configuration and alert rules built on these names.
 
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -44,6 +46,15 @@ pub struct Gauges {
     pub workers_active: i64,
     /// Workers ever registered.
     pub workers_registered: i64,
+    /// Most recent registration, claim or heartbeat of any worker (Unix ms); `None`: no worker
+    /// ever registered.
+    pub worker_last_seen_ms: Option<i64>,
+    /// Size of the database's pages (`page_count × page_size`, without the WAL).
+    pub database_bytes: i64,
+    /// Write transactions that failed with a database error since the server started.
+    pub write_failures: u64,
+    /// Whether the last write transaction failed and none succeeded since (`/healthz` is 503).
+    pub writes_failing: bool,
 }
 
 impl Default for Metrics {
@@ -131,6 +142,47 @@ impl Metrics {
             out,
             "repose_workers_registered {}",
             gauges.workers_registered
+        );
+
+        family(
+            &mut out,
+            "repose_worker_last_seen_timestamp_seconds",
+            "gauge",
+            "Unix time of the most recent registration, claim or heartbeat of any worker (0: none ever).",
+        );
+        let _ = writeln!(
+            out,
+            "repose_worker_last_seen_timestamp_seconds {}",
+            gauges.worker_last_seen_ms.unwrap_or(0) as f64 / 1000.0
+        );
+        family(
+            &mut out,
+            "repose_database_bytes",
+            "gauge",
+            "Size of the SQLite database's pages (page_count x page_size; the WAL not included).",
+        );
+        let _ = writeln!(out, "repose_database_bytes {}", gauges.database_bytes);
+        family(
+            &mut out,
+            "repose_db_writes_failing",
+            "gauge",
+            "1 while the last write transaction failed and none succeeded since (disk full, I/O error; /healthz is 503), else 0.",
+        );
+        let _ = writeln!(
+            out,
+            "repose_db_writes_failing {}",
+            u8::from(gauges.writes_failing)
+        );
+        family(
+            &mut out,
+            "repose_db_write_failures_total",
+            "counter",
+            "Write transactions that failed with a database error since the server started.",
+        );
+        let _ = writeln!(
+            out,
+            "repose_db_write_failures_total {}",
+            gauges.write_failures
         );
 
         for (name, help, counter) in [

@@ -333,7 +333,7 @@ async fn health(State(state): State<AppState>) -> Result<Json<Health>, AppError>
     })?;
     Ok(Json(Health {
         status: "ok".into(),
-        version: env!("CARGO_PKG_VERSION").into(),
+        version: state.config.release.to_string(),
     }))
 }
 
@@ -554,6 +554,8 @@ async fn register_worker(
 ) -> Result<impl IntoResponse, AppError> {
     submit::check_name_length("host", &registration.host)?;
     submit::check_name_length("version", &registration.version)?;
+    repose_api::check_worker_version(state.config.release, &registration.version)
+        .map_err(|refusal| AppError::invalid("version", refusal.to_string()))?;
     state
         .db
         .register_worker(&registration, &caller.name)
@@ -598,6 +600,7 @@ async fn claim_job(
                 &caller.name,
                 state.config.lease,
                 state.config.max_attempts,
+                state.config.release,
             )
             .await?;
         orchestrate::batches_finished(&state, finished);

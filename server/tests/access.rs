@@ -125,7 +125,7 @@ async fn tokens_of_the_wrong_role_get_403() {
     let user = Some(server.user_token.as_str());
     let worker = Some(server.worker_token.as_str());
     let registration = json!({"instance_id": Uuid::new_v4(), "host": "h", "threads": 1,
-                              "version": "t"});
+                              "version": repose_api::version::RELEASE});
 
     // A user token on the worker protocol.
     let (status, body) = server

@@ -166,6 +166,19 @@ async fn metrics_parse_and_count_what_happened() {
         0.0
     );
     assert_eq!(value(&samples, "repose_workers_active", None), 1.0);
+    let last_seen = value(&samples, "repose_worker_last_seen_timestamp_seconds", None);
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    assert!(
+        last_seen <= now && now - last_seen < 60.0,
+        "last seen {last_seen}, now {now}"
+    );
+    let bytes = value(&samples, "repose_database_bytes", None);
+    assert!(bytes >= 4096.0 && bytes % 512.0 == 0.0, "{bytes}");
+    assert_eq!(value(&samples, "repose_db_writes_failing", None), 0.0);
+    assert_eq!(value(&samples, "repose_db_write_failures_total", None), 0.0);
     assert_eq!(value(&samples, "repose_claims_total", None), 4.0);
     assert_eq!(value(&samples, "repose_completions_total", None), 3.0);
     assert_eq!(value(&samples, "repose_failures_total", None), 1.0);
@@ -215,5 +228,126 @@ async fn metrics_parse_and_count_what_happened() {
         ),
         0.0
     );
+    server.stop().await;
+}
+
+async fn scrape(server: &TestServer) -> Vec<Sample> {
+    let response = server
+        .client
+        .get(server.url("/metrics"))
+        .bearer_auth(&server.user_token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), StatusCode::OK);
+    parse_exposition(&response.text().await.unwrap())
+}
+
+/// The alert rules of `deploy/prometheus/` rely on these: write failures while the disk is
+/// full, and a last-seen time of 0 before any worker registered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_show_failing_writes_and_when_a_worker_was_last_seen() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let samples = scrape(&server).await;
+    assert_eq!(
+        value(&samples, "repose_worker_last_seen_timestamp_seconds", None),
+        0.0
+    );
+    server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 30))
+        .await;
+    server.stop().await;
+
+    // One page of room: registration fits, then the "disk" is full.
+    let pages = std::fs::metadata(&db).unwrap().len() / 4096;
+    let server = TestServer::start(&db, |c| c.max_db_pages = Some(pages + 1)).await;
+    let worker = server.register().await;
+    let mut refused = 0;
+    for _ in 0..60 {
+        let (status, _) = server
+            .post(
+                "/v1/jobs/claim",
+                &json!({"worker_id": worker, "wait_s": 0.0}),
+            )
+            .await;
+        match status {
+            StatusCode::OK => {}
+            StatusCode::SERVICE_UNAVAILABLE => refused += 1,
+            other => panic!("claim answered {other}"),
+        }
+        if refused >= 2 {
+            break;
+        }
+    }
+    assert!(refused >= 2, "the database never filled up");
+    let samples = scrape(&server).await;
+    assert_eq!(value(&samples, "repose_db_writes_failing", None), 1.0);
+    assert!(value(&samples, "repose_db_write_failures_total", None) >= 2.0);
+    assert!(value(&samples, "repose_worker_last_seen_timestamp_seconds", None) > 0.0);
+    assert!(
+        value(
+            &samples,
+            "repose_http_responses_total",
+            Some(("class", "5xx"))
+        ) >= 2.0
+    );
+    server.stop().await;
+}
+
+/// Every `repose_*` series that `deploy/prometheus/repose-alerts.yml` uses (name and `k="v"`
+/// label matchers) is exported by a live server, so an alert cannot watch a metric that does
+/// not exist.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_alert_rules_use_only_exported_metrics() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../deploy/prometheus/repose-alerts.yml");
+    let rules = std::fs::read_to_string(&path).unwrap();
+    let mut used: Vec<(String, Vec<(String, String)>)> = Vec::new();
+    let mut rest = rules.as_str();
+    while let Some(at) = rest.find("repose_") {
+        let tail = &rest[at..];
+        let end = tail
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(tail.len());
+        let name = tail[..end].to_owned();
+        let mut matchers = Vec::new();
+        if let Some(inner) = tail[end..].strip_prefix('{') {
+            let inner = &inner[..inner.find('}').expect("matchers end with }")];
+            for matcher in inner.split(',') {
+                if let Some((key, value)) = matcher.split_once('=') {
+                    if let Some(value) = value.trim().strip_prefix('"') {
+                        if !key.ends_with('!') && !value.starts_with('~') {
+                            let value = value.trim_end_matches('"');
+                            matchers.push((key.trim().to_owned(), value.to_owned()));
+                        }
+                    }
+                }
+            }
+        }
+        used.push((name, matchers));
+        rest = &tail[end..];
+    }
+    assert!(used.len() >= 6, "{used:?}");
+
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    server.register().await;
+    let samples = scrape(&server).await;
+    for (name, matchers) in &used {
+        let found = samples.iter().any(|(n, labels, _)| {
+            n == name
+                && matchers
+                    .iter()
+                    .all(|(k, v)| labels.get(k).map(String::as_str) == Some(v.as_str()))
+        });
+        // The job and instance labels are Prometheus's own, added at scrape time.
+        let prometheus_labels = matchers.iter().all(|(k, _)| k == "job" || k == "instance");
+        assert!(
+            found || (prometheus_labels && samples.iter().any(|(n, _, _)| n == name)),
+            "{} uses {name}{matchers:?}, which /metrics does not export",
+            path.display()
+        );
+    }
     server.stop().await;
 }

@@ -145,7 +145,7 @@ async fn real_responses_match_the_documented_schemas() {
     let (_, registered) = server
         .post(
             "/v1/workers/register",
-            &json!({"instance_id": worker, "host": "h", "threads": 1, "version": "t"}),
+            &json!({"instance_id": worker, "host": "h", "threads": 1, "version": repose_api::version::RELEASE}),
         )
         .await;
     assert_eq!(keys(&registered), properties(&doc, "WorkerRegistered"));

@@ -428,7 +428,7 @@ async fn oversized_text_fields_are_refused_naming_the_field() {
     let (status, body) = server
         .post(
             "/v1/workers/register",
-            &json!({"instance_id": Uuid::new_v4(), "host": long, "threads": 1, "version": "t"}),
+            &json!({"instance_id": Uuid::new_v4(), "host": long, "threads": 1, "version": repose_api::version::RELEASE}),
         )
         .await;
     assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
@@ -536,7 +536,7 @@ async fn a_worker_id_belongs_to_the_token_that_registered_it() {
         .await
         .unwrap();
     let registration = json!({"instance_id": worker, "host": "evil", "threads": 1,
-                              "version": "x"});
+                              "version": repose_api::version::RELEASE});
     let (status, body) = server
         .post_as("/v1/workers/register", &registration, Some(&intruder))
         .await;

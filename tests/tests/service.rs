@@ -6,6 +6,7 @@ mod common;
 
 use std::time::Duration;
 
+use common::repose;
 use common::service::Service;
 use serde_json::{json, Value};
 
@@ -366,4 +367,57 @@ fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum()
             assert!(p["engine_version"].is_string(), "{p}");
         }
     }
+}
+
+/// `repose backup` copies the live database mid-batch; the server is then lost (SIGKILL) and a
+/// server started on the copy finishes the batch with new workers. Results stored before the
+/// backup are kept; runs finished after it are simulated again.
+#[test]
+fn repose_backup_mid_batch_restores_to_a_server_that_finishes_the_batch() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut service = Service::start(dir.path(), 2.0);
+    let batch = service.submit(&replay_batch(8, 0.5));
+    let mut first = service.start_worker("before-backup", &[]);
+    service.wait_for(&batch, Duration::from_secs(60), |s| {
+        s["counts"]["completed"].as_u64().unwrap_or(0) >= 2
+    });
+    let copy = dir.path().join("backup.db");
+    let out = repose(&[
+        "backup",
+        "--db",
+        service.db.to_str().unwrap(),
+        "--out",
+        copy.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && stdout.contains("integrity ok"),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let at_backup: Vec<Value> = runs(&service, &batch)
+        .into_iter()
+        .filter(|r| r["status"] == "completed")
+        .collect();
+    assert!(!at_backup.is_empty());
+    first.kill();
+    service.kill_and_restart_on(&copy, 2.0);
+
+    let _second = service.start_worker("after-restore", &[]);
+    let status = service.wait_finished(&batch, Duration::from_secs(120));
+    assert_eq!(status["state"], "completed", "{status}");
+    assert_eq!(status["counts"]["completed"], 8, "{status}");
+    let restored = runs(&service, &batch);
+    for run in &restored {
+        let x = run["factors"][0]["natural"].as_f64().unwrap();
+        assert_eq!(run["metrics"]["y"].as_f64(), Some(10.0 + 2.0 * x), "{run}");
+    }
+    // Runs completed at the backup kept their first result (and its worker).
+    for old in &at_backup {
+        let now = restored.iter().find(|r| r["id"] == old["id"]).unwrap();
+        assert_eq!(now["worker_id"], old["worker_id"], "{now}");
+        assert_eq!(now["attempts"], old["attempts"], "{now}");
+    }
+    let analysis = service.get(&format!("/v1/batches/{batch}/analysis"));
+    assert_eq!(analysis["runs_used"], 8);
 }

@@ -19,7 +19,14 @@ pub enum CallError {
     Unreachable(#[source] reqwest::Error),
     /// The server answered with an error status.
     #[error("server answered {status}: {message}")]
-    Status { status: StatusCode, message: String },
+    Status {
+        /// The status code.
+        status: StatusCode,
+        /// The server's explanation (with the field it blames, if any).
+        message: String,
+        /// The request field the server blamed, if any.
+        field: Option<String>,
+    },
     /// The server answered 2xx with a body that is not the expected type.
     #[error("unexpected reply: {0}")]
     Decode(String),
@@ -36,6 +43,13 @@ impl CallError {
             }
             CallError::Decode(_) => false,
         }
+    }
+
+    /// The server does not accept this worker's release (422 blaming `version`): retrying
+    /// cannot help; the worker has to be upgraded (or the server).
+    pub fn is_version_refusal(&self) -> bool {
+        matches!(self, CallError::Status { status, field: Some(field), .. }
+            if *status == StatusCode::UNPROCESSABLE_ENTITY && field == "version")
     }
 
     /// The server refused the update because the lease is no longer ours (409) or the job is
@@ -177,13 +191,22 @@ impl Client {
         }
         let bytes = response.bytes().await.map_err(CallError::Unreachable)?;
         if !status.is_success() {
-            let message = serde_json::from_slice::<ApiError>(&bytes)
-                .map(|e| match e.field {
-                    Some(field) => format!("{} (field {field})", e.error),
-                    None => e.error,
-                })
-                .unwrap_or_else(|_| String::from_utf8_lossy(&bytes).chars().take(200).collect());
-            return Err(CallError::Status { status, message });
+            let (message, field) = match serde_json::from_slice::<ApiError>(&bytes) {
+                Ok(ApiError {
+                    error,
+                    field: Some(field),
+                }) => (format!("{error} (field {field})"), Some(field)),
+                Ok(ApiError { error, field: None }) => (error, None),
+                Err(_) => (
+                    String::from_utf8_lossy(&bytes).chars().take(200).collect(),
+                    None,
+                ),
+            };
+            return Err(CallError::Status {
+                status,
+                message,
+                field,
+            });
         }
         serde_json::from_slice(&bytes)
             .map(Some)

@@ -6,7 +6,11 @@
 //!   back-off until the server answers (a 409 then means someone else's result won);
 //! - a lost lease (409 on a heartbeat, or `cancel` in the reply) stops the simulation;
 //! - on shutdown the worker stops claiming, cancels what it is running and releases those jobs
-//!   so another worker starts them at once (no attempt is counted).
+//!   so another worker starts them at once (no attempt is counted);
+//! - a server that refuses the worker's release (at registration or at a claim after a server
+//!   upgrade) stops the worker with [`WorkerError::IncompatibleVersion`] instead of retrying;
+//! - with [`WorkerConfig::exit_when_idle`], the worker stops by itself once no job was
+//!   available for that long (batch schedulers: an array task ends when the queue is empty).
 //!
 //! ```no_run
 //! # async fn run() -> Result<(), repose_worker::WorkerError> {
@@ -22,8 +26,8 @@
 
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rand::Rng;
@@ -60,6 +64,12 @@ pub struct WorkerConfig {
     pub artifacts_dir: Option<PathBuf>,
     /// Directory of settled drilling beds reused across runs; none: every run builds its bed.
     pub bed_cache: Option<PathBuf>,
+    /// Stop (like a shutdown, with nothing to release) once no slot had a job for this long;
+    /// none: wait for jobs forever.
+    pub exit_when_idle: Option<Duration>,
+    /// Release reported at registration; the server accepts only its own `MAJOR.MINOR`.
+    /// Always this build's release ([`repose_api::version::RELEASE`]) except in tests.
+    pub version: String,
 }
 
 impl WorkerConfig {
@@ -75,6 +85,8 @@ impl WorkerConfig {
             max_backoff: Duration::from_secs(30),
             artifacts_dir: None,
             bed_cache: None,
+            exit_when_idle: None,
+            version: repose_api::version::RELEASE.to_owned(),
         }
     }
 }
@@ -102,6 +114,9 @@ pub enum WorkerError {
     /// The server refused the registration (e.g. a bad token).
     #[error("registration refused: {0}")]
     Registration(#[source] CallError),
+    /// The server does not accept this worker's release; the message names both versions.
+    #[error("the server refuses this worker's version: {0}")]
+    IncompatibleVersion(String),
     /// The HTTP client could not be built.
     #[error("HTTP client: {0}")]
     Http(#[from] reqwest::Error),
@@ -118,6 +133,8 @@ pub struct WorkerSummary {
     pub released: u64,
     /// Jobs abandoned because the lease was lost (cancelled batch, expired lease).
     pub abandoned: u64,
+    /// The worker stopped because no job came for [`WorkerConfig::exit_when_idle`].
+    pub exited_idle: bool,
 }
 
 /// Runs the worker until `shutdown` resolves; then releases running jobs and returns.
@@ -131,18 +148,27 @@ pub async fn run(
     if config.threads == 0 {
         return Err(WorkerError::Config("threads must be at least 1".into()));
     }
+    if config.exit_when_idle.is_some_and(|idle| idle.is_zero()) {
+        return Err(WorkerError::Config(
+            "exit_when_idle must be longer than zero".into(),
+        ));
+    }
     let client = Client::new(&config.server, config.token.clone())?;
     let (stop_sender, stop) = watch::channel(false);
-    tokio::spawn(async move {
-        shutdown.await;
-        stop_sender.send_replace(true);
-    });
+    let stop_sender = Arc::new(stop_sender);
+    {
+        let stop_sender = stop_sender.clone();
+        tokio::spawn(async move {
+            shutdown.await;
+            stop_sender.send_replace(true);
+        });
+    }
 
     let registration = WorkerRegistration {
         instance_id: Uuid::new_v4(),
         host: config.host.clone(),
         threads: u32::try_from(config.threads).unwrap_or(u32::MAX),
-        version: env!("CARGO_PKG_VERSION").to_owned(),
+        version: config.version.clone(),
     };
     let registered = {
         let mut backoff = Backoff::new(config.max_backoff);
@@ -154,6 +180,9 @@ pub async fn run(
                     if backoff.wait(&stop).await {
                         return Ok(WorkerSummary::default());
                     }
+                }
+                Err(e) if e.is_version_refusal() => {
+                    return Err(WorkerError::IncompatibleVersion(e.to_string()))
                 }
                 Err(e) => return Err(WorkerError::Registration(e)),
             }
@@ -171,6 +200,11 @@ pub async fn run(
         lease,
         config,
         stop,
+        stop_sender,
+        fatal: Mutex::new(None),
+        busy: AtomicUsize::new(0),
+        idle_since: Mutex::new(Instant::now()),
+        exited_idle: AtomicBool::new(false),
     });
     let slots: Vec<_> = (0..context.config.slots)
         .map(|slot| tokio::spawn(slot_loop(context.clone(), slot)))
@@ -184,7 +218,11 @@ pub async fn run(
             summary.abandoned += s.abandoned;
         }
     }
+    summary.exited_idle = context.exited_idle.load(Ordering::SeqCst);
     tracing::info!(?summary, "worker stopped");
+    if let Some(refusal) = context.fatal.lock().ok().and_then(|mut f| f.take()) {
+        return Err(refusal);
+    }
     Ok(summary)
 }
 
@@ -195,6 +233,50 @@ struct SlotContext {
     lease: Duration,
     config: WorkerConfig,
     stop: watch::Receiver<bool>,
+    /// Stops every slot: for a refusal that no retry can fix, and for the idle exit.
+    stop_sender: Arc<watch::Sender<bool>>,
+    /// Why the worker stopped by itself, if it was an error.
+    fatal: Mutex<Option<WorkerError>>,
+    /// Slots running a job now.
+    busy: AtomicUsize,
+    /// When the last job ended (or the worker started).
+    idle_since: Mutex<Instant>,
+    /// Set when the idle exit stopped the worker.
+    exited_idle: AtomicBool,
+}
+
+impl SlotContext {
+    /// The long-poll wait of a claim: never longer than the idle limit, so an idle worker
+    /// notices it in time.
+    fn claim_wait(&self) -> Duration {
+        match self.config.exit_when_idle {
+            Some(idle) => self.config.claim_wait.min(idle),
+            None => self.config.claim_wait,
+        }
+    }
+
+    /// After a claim found nothing: stops the worker if every slot has been idle for
+    /// [`WorkerConfig::exit_when_idle`].
+    fn stop_if_idle(&self, slot: usize) {
+        let Some(idle) = self.config.exit_when_idle else {
+            return;
+        };
+        if self.busy.load(Ordering::SeqCst) > 0 {
+            return;
+        }
+        let idle_for = self
+            .idle_since
+            .lock()
+            .map_or(Duration::ZERO, |since| since.elapsed());
+        if idle_for >= idle && !self.exited_idle.swap(true, Ordering::SeqCst) {
+            tracing::info!(
+                slot,
+                idle_s = idle_for.as_secs_f64(),
+                "no job for the idle limit (--exit-when-idle); stopping"
+            );
+            self.stop_sender.send_replace(true);
+        }
+    }
 }
 
 async fn slot_loop(context: Arc<SlotContext>, slot: usize) -> WorkerSummary {
@@ -203,22 +285,41 @@ async fn slot_loop(context: Arc<SlotContext>, slot: usize) -> WorkerSummary {
     while !*context.stop.borrow() {
         let mut stop = context.stop.clone();
         let claimed = tokio::select! {
-            claimed = context.client.claim(context.worker_id, context.config.claim_wait) => claimed,
+            claimed = context.client.claim(context.worker_id, context.claim_wait()) => claimed,
             _ = stop.wait_for(|s| *s) => break,
         };
         match claimed {
             Ok(Some(job)) => {
                 backoff.reset();
+                context.busy.fetch_add(1, Ordering::SeqCst);
                 tracing::info!(slot, job = %job.job_id, run = %job.run_id, kind = %job.kind,
                     attempt = job.attempt, "job leased");
-                match run_job(&context, job).await {
+                let end = run_job(&context, job).await;
+                if let Ok(mut since) = context.idle_since.lock() {
+                    *since = Instant::now();
+                }
+                context.busy.fetch_sub(1, Ordering::SeqCst);
+                match end {
                     JobEnd::Completed => summary.completed += 1,
                     JobEnd::Failed => summary.failed += 1,
                     JobEnd::Released => summary.released += 1,
                     JobEnd::Abandoned => summary.abandoned += 1,
                 }
             }
-            Ok(None) => backoff.reset(),
+            Ok(None) => {
+                backoff.reset();
+                context.stop_if_idle(slot);
+            }
+            Err(e) if e.is_version_refusal() => {
+                // The server was upgraded under this worker: no retry can fix that. Stop every
+                // slot (running jobs are released) and report it.
+                tracing::error!(slot, error = %e, "the server refuses this worker's version; stopping");
+                if let Ok(mut fatal) = context.fatal.lock() {
+                    fatal.get_or_insert(WorkerError::IncompatibleVersion(e.to_string()));
+                }
+                context.stop_sender.send_replace(true);
+                break;
+            }
             Err(e) if e.is_transient() => {
                 tracing::warn!(slot, error = %e, "claim failed; retrying");
                 if backoff.wait(&context.stop).await {

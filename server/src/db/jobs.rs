@@ -93,13 +93,15 @@ impl Db {
 
     /// Leases the oldest available job to `worker_id`, first returning expired leases to the
     /// queue (or marking their jobs dead after `max_attempts`). `Ok(None)`: nothing to do.
-    /// Also reports the batches that the expiries finished.
+    /// Also reports the batches that the expiries finished. A worker whose registered
+    /// version `release` does not accept is refused (field `version`).
     pub async fn claim(
         &self,
         worker_id: Uuid,
         caller: &str,
         lease: Duration,
         max_attempts: u32,
+        release: repose_api::ReleaseVersion,
     ) -> Result<(Option<ClaimResponse>, Vec<Uuid>), DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
@@ -114,16 +116,16 @@ impl Db {
                 })
                 .unwrap_or(false);
             if !seen_recently {
-                let worker_known =
-                    sqlx::query("UPDATE workers SET last_seen_at = ? WHERE id = ? AND token = ?")
-                        .bind(now)
-                        .bind(worker_id.to_string())
-                        .bind(caller)
-                        .execute(&mut *tx)
-                        .await?
-                        .rows_affected()
-                        == 1;
-                if !worker_known {
+                let version: Option<String> = sqlx::query_scalar(
+                    "UPDATE workers SET last_seen_at = ? WHERE id = ? AND token = ?
+                     RETURNING version",
+                )
+                .bind(now)
+                .bind(worker_id.to_string())
+                .bind(caller)
+                .fetch_optional(&mut *tx)
+                .await?;
+                let Some(version) = version else {
                     return Err(DbError::invalid(
                         "worker_id",
                         format!(
@@ -131,7 +133,11 @@ impl Db {
                              POST /v1/workers/register first"
                         ),
                     ));
-                }
+                };
+                // A worker registered with an older server (before an upgrade) is refused
+                // at its first claim here, as a registration would be.
+                repose_api::check_worker_version(release, &version)
+                    .map_err(|refusal| DbError::invalid("version", refusal.to_string()))?;
                 if let Ok(mut seen) = self.seen_workers.lock() {
                     seen.insert(worker_id, (caller.to_owned(), now));
                 }
@@ -384,10 +390,16 @@ impl Db {
             found.sort();
         }
         let workers = sqlx::query(
-            "SELECT COUNT(*) AS registered, COALESCE(SUM(last_seen_at >= ?), 0) AS active
+            "SELECT COUNT(*) AS registered, COALESCE(SUM(last_seen_at >= ?), 0) AS active,
+                    MAX(last_seen_at) AS last_seen
              FROM workers",
         )
         .bind(now_ms() - duration_ms(lease))
+        .fetch_one(&self.reader)
+        .await?;
+        let database_bytes: i64 = sqlx::query_scalar(
+            "SELECT page_count * page_size FROM pragma_page_count(), pragma_page_size()",
+        )
         .fetch_one(&self.reader)
         .await?;
         Ok(Gauges {
@@ -395,6 +407,10 @@ impl Db {
             batches,
             workers_active: workers.try_get("active")?,
             workers_registered: workers.try_get("registered")?,
+            worker_last_seen_ms: workers.try_get("last_seen")?,
+            database_bytes,
+            write_failures: self.writer_health.failures.load(Ordering::Relaxed),
+            writes_failing: self.writer_health.failing().is_some(),
         })
     }
 }

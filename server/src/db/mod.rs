@@ -1,5 +1,6 @@
 //! All SQL of the server, by concern: [`batches`] (batches and runs), [`jobs`] (workers,
-//! claims, leases and job updates), [`campaigns`], [`tokens`], [`analyses`]; this file holds the
+//! claims, leases and job updates), [`campaigns`], [`tokens`], [`analyses`], [`backup`] (a
+//! consistent copy of a live database); this file holds the
 //! connection handling shared by all of them (the writer's [`WriteTx`], the health probe).
 //!
 //! SQLite in WAL mode with two pools: a single-connection *writer* pool, so write transactions
@@ -35,6 +36,7 @@ use crate::submit::PlannedBatch;
 use crate::tokens::TokenInfo;
 
 mod analyses;
+mod backup;
 mod batches;
 mod campaigns;
 mod error;
@@ -42,6 +44,7 @@ mod jobs;
 mod tokens;
 
 pub use analyses::AnalysisInput;
+pub use backup::{backup, BackupError, BackupReport};
 use batches::*;
 pub use campaigns::{CampaignRecord, CampaignUpdate};
 pub use error::DbError;
@@ -113,14 +116,17 @@ pub struct OpenOptions {
     pub max_pages: Option<u64>,
 }
 
-/// The most recent write failure, cleared by the next successful write transaction.
+/// The most recent write failure, cleared by the next successful write transaction, and how
+/// many write transactions failed since the server started.
 #[derive(Debug, Default)]
 struct WriterHealth {
     last_failure: Mutex<Option<String>>,
+    failures: std::sync::atomic::AtomicU64,
 }
 
 impl WriterHealth {
     fn record_failure(&self, err: &sqlx::Error) {
+        self.failures.fetch_add(1, Ordering::Relaxed);
         if let Ok(mut last) = self.last_failure.lock() {
             *last = Some(err.to_string());
         }

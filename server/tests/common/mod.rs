@@ -183,7 +183,7 @@ impl TestServer {
             instance_id: worker,
             host: "test-host".into(),
             threads: 1,
-            version: "test".into(),
+            version: repose_api::version::RELEASE.into(),
         };
         let (status, body) = self
             .post(

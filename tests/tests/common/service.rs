@@ -163,6 +163,16 @@ impl Service {
         assert_eq!(url, self.url);
     }
 
+    /// Kills the server (SIGKILL) and starts it on another database file (a restored backup)
+    /// on the same port; the tokens must be in that file.
+    pub fn kill_and_restart_on(&mut self, db: &Path, lease_s: f64) {
+        self.server.kill();
+        let (server, url, _) = start_server(&self.dir, db, self.port, lease_s, "server-restored");
+        self.server = server;
+        self.db = db.to_owned();
+        assert_eq!(url, self.url);
+    }
+
     /// Starts `repose worker` with the worker token; `name` names its log file.
     pub fn start_worker(&self, name: &str, extra: &[&str]) -> Proc {
         let (log, file) = log_file(&self.dir, name);

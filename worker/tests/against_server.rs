@@ -1,0 +1,180 @@
+//! The worker library against the real server (in-process, 127.0.0.1, ephemeral port, temp
+//! SQLite): the version refusal and the idle exit.
+
+use std::path::Path;
+use std::time::Duration;
+
+use repose_api::ReleaseVersion;
+use repose_server::{create_token, serve, Config, ServeError, TokenRole};
+use repose_worker::{run, WorkerConfig, WorkerError};
+use serde_json::json;
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+
+struct Server {
+    url: String,
+    stop: oneshot::Sender<()>,
+    task: JoinHandle<Result<(), ServeError>>,
+}
+
+impl Server {
+    async fn start(db: &Path, address: &str, release: ReleaseVersion) -> Server {
+        let mut config = Config::new(db);
+        config.release = release;
+        config.lease = Duration::from_secs(5);
+        let listener = TcpListener::bind(address).await.unwrap();
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        let (stop, stopped) = oneshot::channel::<()>();
+        let task = tokio::spawn(serve(config, listener, async move {
+            let _ = stopped.await;
+        }));
+        Server { url, stop, task }
+    }
+
+    async fn stop(self) {
+        let _ = self.stop.send(());
+        self.task.await.unwrap().unwrap();
+    }
+}
+
+fn worker_config(url: &str, token: &str) -> WorkerConfig {
+    let mut config = WorkerConfig::new(url);
+    config.token = Some(token.to_owned());
+    config.threads = 1;
+    config.claim_wait = Duration::from_millis(500);
+    config.max_backoff = Duration::from_millis(500);
+    config
+}
+
+/// A replay batch (`table_lookup`) of `points` runs, each holding its worker `hold_s`.
+async fn submit_replay(url: &str, user: &str, points: usize, hold_s: f64) {
+    let rows: Vec<_> = (0..points)
+        .map(|i| json!({"x": i as f64, "y": 1.0 + i as f64}))
+        .collect();
+    let design: Vec<_> = (0..points).map(|i| json!([i as f64])).collect();
+    let batch = json!({
+        "name": "replay",
+        "experiment": {"kind": "table_lookup",
+                       "spec": {"values": {"x": 0.0}, "rows": rows, "hold_s": hold_s}},
+        "factors": [{"name": "x", "path": "values.x", "low": 0.0, "high": (points - 1) as f64}],
+        "design": {"type": "explicit", "points": design},
+        "response": "y",
+        "model": "none",
+        "seed": 3
+    });
+    let response = reqwest::Client::new()
+        .post(format!("{url}/v1/batches"))
+        .bearer_auth(user)
+        .json(&batch)
+        .send()
+        .await
+        .unwrap();
+    assert!(response.status().is_success(), "{}", response.status());
+}
+
+fn bumped_minor() -> ReleaseVersion {
+    let current = ReleaseVersion::current();
+    ReleaseVersion {
+        minor: current.minor + 1,
+        patch: 0,
+        ..current
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_older_worker_is_refused_at_registration_and_exits_naming_both_versions() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("repose.sqlite");
+    let token = create_token(&db, "workers", TokenRole::Worker)
+        .await
+        .unwrap();
+    let server = Server::start(&db, "127.0.0.1:0", bumped_minor()).await;
+    let config = worker_config(&server.url, &token);
+    let outcome =
+        tokio::time::timeout(Duration::from_secs(20), run(config, std::future::pending()))
+            .await
+            .expect("the worker gives up instead of retrying");
+    let Err(WorkerError::IncompatibleVersion(message)) = outcome else {
+        panic!("expected a version refusal, got {outcome:?}");
+    };
+    assert!(
+        message.contains(repose_api::version::RELEASE)
+            && message.contains(&bumped_minor().to_string()),
+        "{message}"
+    );
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_running_across_a_server_upgrade_is_refused_at_its_next_claim_and_stops() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("repose.sqlite");
+    let token = create_token(&db, "workers", TokenRole::Worker)
+        .await
+        .unwrap();
+    let old = Server::start(&db, "127.0.0.1:0", ReleaseVersion::current()).await;
+    let url = old.url.clone();
+    let worker = tokio::spawn(run(worker_config(&url, &token), std::future::pending()));
+    // Registered and long-polling on the old server.
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert!(!worker.is_finished());
+    old.stop().await;
+
+    // The "upgraded" server on the same address and database.
+    let address = url.trim_start_matches("http://").to_owned();
+    let new = Server::start(&db, &address, bumped_minor()).await;
+    let outcome = tokio::time::timeout(Duration::from_secs(30), worker)
+        .await
+        .expect("the worker stops instead of retrying forever")
+        .unwrap();
+    let Err(WorkerError::IncompatibleVersion(message)) = outcome else {
+        panic!("expected a version refusal, got {outcome:?}");
+    };
+    assert!(
+        message.contains(repose_api::version::RELEASE)
+            && message.contains(&bumped_minor().to_string())
+            && message.contains("upgrade the worker"),
+        "{message}"
+    );
+    new.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn exit_when_idle_stops_the_worker_once_the_queue_stays_empty() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("repose.sqlite");
+    let token = create_token(&db, "workers", TokenRole::Worker)
+        .await
+        .unwrap();
+    let user = create_token(&db, "someone", TokenRole::User).await.unwrap();
+    let server = Server::start(&db, "127.0.0.1:0", ReleaseVersion::current()).await;
+    // Each job holds its slot longer than the idle limit: busy slots are not idle.
+    submit_replay(&server.url, &user, 3, 1.5).await;
+    let mut config = worker_config(&server.url, &token);
+    config.slots = 2;
+    config.exit_when_idle = Some(Duration::from_secs(1));
+    let started = std::time::Instant::now();
+    let summary =
+        tokio::time::timeout(Duration::from_secs(60), run(config, std::future::pending()))
+            .await
+            .expect("the idle worker exits by itself")
+            .unwrap();
+    let took = started.elapsed();
+    assert_eq!(summary.completed, 3, "{summary:?}");
+    assert_eq!(summary.released, 0, "{summary:?}");
+    assert!(summary.exited_idle);
+    // Two rounds of 1.5 s jobs, then one idle second (plus a claim's wait at most).
+    assert!(took >= Duration::from_secs(4), "{took:?}");
+    assert!(took < Duration::from_secs(15), "{took:?}");
+
+    // Without the option, the worker keeps waiting.
+    let config = worker_config(&server.url, &token);
+    let waiting =
+        tokio::time::timeout(Duration::from_secs(3), run(config, std::future::pending())).await;
+    assert!(
+        waiting.is_err(),
+        "a worker without the idle exit keeps waiting"
+    );
+    server.stop().await;
+}
