@@ -329,7 +329,7 @@ th{font-weight:600;color:#4a5163;background:#f5f6fa}td.num{text-align:right;font
 .muted{color:#6b7285}.state-active{color:#3b7dd8}.state-completed{color:#2e8b57}.state-cancelled{color:#6b7285}
 .state-needs_attention,.error{color:#a02a1e}pre.error{white-space:pre-wrap;margin:0;font-size:.9em;max-width:40em}
 .notice{background:#fff6e0;border:1px solid #e8c770;padding:.6em .8em;border-radius:4px}
-form.inline{display:inline}input[type=password]{width:26em;padding:.3em}button{padding:.3em .9em}
+td.nowrap{white-space:nowrap}form.inline{display:inline}input[type=password]{width:26em;padding:.3em}button{padding:.3em .9em}
 ";
 
 fn layout(title: &str, body: Markup) -> Markup {
@@ -444,10 +444,10 @@ fn batches_section(data: &StatusData) -> Markup {
                         td { (b.kind) }
                         td { span class=(format!("state-{}", batch_state_word(b.state))) { (batch_state_word(b.state)) } }
                         td { (progress(b)) }
-                        td { (time_left(line)) }
+                        td.nowrap { (time_left(line)) }
                         td { (ago(data.now_ms, b.created_at_ms)) }
                         td { (b.owner.as_deref().unwrap_or("—")) }
-                        td {
+                        td.nowrap {
                             a href=(format!("/v1/batches/{}/runs?format=csv", b.id)) { "runs (CSV)" }
                             @if b.state == BatchState::Completed {
                                 br;
@@ -466,7 +466,7 @@ fn progress(b: &BatchSummary) -> Markup {
     let total = b.counts.total().max(1) as f64;
     let width = |n: u64| format!("width:{:.1}%", 100.0 * n as f64 / total);
     html! {
-        (b.counts.completed) " of " (b.counts.total()) " runs done (" (format!("{:.0}", b.percent_done)) " %)"
+        (b.counts.finished()) " of " (b.counts.total()) " runs finished (" (format!("{:.0}", b.percent_done)) " %)"
         @if b.counts.running > 0 { ", " (b.counts.running) " running" }
         @if b.counts.dead > 0 { ", " span.error { (b.counts.dead) " dead" } }
         @if b.counts.cancelled > 0 { ", " (b.counts.cancelled) " cancelled" }

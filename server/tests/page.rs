@@ -100,7 +100,7 @@ async fn page_shows_progress_workers_and_dead_runs_with_all_text_escaped() {
     assert!(page.contains(NASTY_NAME_ESCAPED), "{page}");
     assert!(!page.contains("<b>sand"), "the name was not escaped");
     assert!(
-        page.contains("1 of 4 runs done (50 %), 1 running, "),
+        page.contains("2 of 4 runs finished (50 %), 1 running, "),
         "{page}"
     );
     assert!(page.contains("1 dead"), "{page}");
