@@ -323,12 +323,14 @@ fn partitioned_and_lossy_workers_still_give_every_run_exactly_one_result() {
     assert_eq!(status["state"], "completed", "{status}");
     let refusals_before = metric(&service, "repose_http_responses_total{class=\"4xx\"}");
     net.heal(0);
-    wait_until("A's refused late result", Duration::from_secs(60), || {
+    let refusal = wait_until("A's refused late result", Duration::from_secs(60), || {
         worker_a
             .log_text()
-            .contains("complete refused")
-            .then_some(())
+            .lines()
+            .find(|line| line.contains("complete refused"))
+            .map(str::to_owned)
     });
+    assert!(refusal.contains("409"), "refused with 409: {refusal}");
     assert!(
         metric(&service, "repose_http_responses_total{class=\"4xx\"}") > refusals_before,
         "the late result was answered with a 4xx"
