@@ -266,7 +266,7 @@ pub fn render_text(view: &AnalysisView) -> String {
         }
         let _ = writeln!(out);
     }
-    let fit = view.fit.as_ref().map(|value| StoredFit::deserialize(value));
+    let fit = view.fit.as_ref().map(StoredFit::deserialize);
     match &fit {
         Some(Ok(fit)) => {
             out.push('\n');

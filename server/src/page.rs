@@ -211,6 +211,7 @@ fn cross_site_response() -> Response {
         StatusCode::FORBIDDEN,
         layout(
             "repose: refused",
+            None,
             html! {
                 h1 { "repose" }
                 p.notice { "This form was posted from another site, so it was refused. \
@@ -332,13 +333,15 @@ th{font-weight:600;color:#4a5163;background:#f5f6fa}td.num{text-align:right;font
 td.nowrap{white-space:nowrap}form.inline{display:inline}input[type=password]{width:26em;padding:.3em}button{padding:.3em .9em}
 ";
 
-fn layout(title: &str, body: Markup) -> Markup {
+/// A whole page; `refresh_s`: reload itself this often.
+fn layout(title: &str, refresh_s: Option<u32>, body: Markup) -> Markup {
     html! {
         (DOCTYPE)
         html lang="en" {
             head {
                 meta charset="utf-8";
                 meta name="viewport" content="width=device-width, initial-scale=1";
+                @if let Some(seconds) = refresh_s { meta http-equiv="refresh" content=(seconds); }
                 title { (title) }
                 style { (PreEscaped(STYLE)) }
             }
@@ -362,6 +365,7 @@ fn render_sign_in(reason: SignInReason) -> Markup {
     };
     layout(
         "repose: sign in",
+        None,
         html! {
             header { h1 { "repose" } span.muted { "job server " (env!("CARGO_PKG_VERSION")) } }
             h2 { "Sign in" }
@@ -393,8 +397,8 @@ fn render_status(data: &StatusData, caller: Option<&Caller>, signed_in: bool) ->
         .count();
     layout(
         "repose: status",
+        Some(REFRESH_S),
         html! {
-            meta http-equiv="refresh" content=(REFRESH_S);
             header {
                 h1 { "repose" }
                 span.muted {

@@ -5,6 +5,10 @@
 
 mod common;
 
+#[allow(unused_imports)]
+#[path = "../../campaign/tests/common/mod.rs"]
+mod paper;
+
 use common::{batch_request, temp_db, TestServer};
 use repose_api::Failure;
 use reqwest::header::{CONTENT_TYPE, COOKIE, LOCATION, ORIGIN, SET_COOKIE};
@@ -118,6 +122,7 @@ async fn page_shows_progress_workers_and_dead_runs_with_all_text_escaped() {
     // The dead run and its error, as text.
     assert!(page.contains(NASTY_ERROR_ESCAPED), "{page}");
     assert!(!page.contains("<script>"), "the error was not escaped");
+    assert!(page.contains("<meta http-equiv=\"refresh\" content=\"15\">"));
     // Anonymous readers get no sign-out button.
     assert!(page.contains("open for reading") && !page.contains("Sign out"));
     server.stop().await;
@@ -275,5 +280,54 @@ async fn with_private_reads_the_page_shows_a_user_only_its_own_and_refuses_worke
     assert_eq!(response.status(), StatusCode::FORBIDDEN);
     assert!(response.headers().get(SET_COOKIE).is_none());
     assert!(response.text().await.unwrap().contains("worker token"));
+    server.stop().await;
+}
+
+#[tokio::test]
+async fn campaigns_are_listed_with_their_stage_and_a_report_the_cookie_opens() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let (status, created) = server
+        .post(
+            "/v1/campaigns",
+            &paper::paper_campaign_json("<u>paper</u> replay"),
+        )
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    let id = created["id"].as_str().unwrap().to_owned();
+
+    let cookie = format!("repose_token={}", server.user_token);
+    let (status, page) = get_page(&server, Some(&cookie)).await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(page.contains("&lt;u&gt;paper&lt;/u&gt; replay"), "{page}");
+    assert!(
+        !page.contains("<u>paper"),
+        "the campaign name was not escaped"
+    );
+    assert!(
+        page.contains(">running<") && page.contains(">screening<"),
+        "{page}"
+    );
+    let report_link = format!("/v1/campaigns/{id}/report");
+    assert!(page.contains(&format!("href=\"{report_link}\"")), "{page}");
+
+    let report = plain_client()
+        .get(server.url(&report_link))
+        .header(COOKIE, &cookie)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(report.status(), StatusCode::OK);
+    assert!(report.headers()[CONTENT_TYPE]
+        .to_str()
+        .unwrap()
+        .starts_with("text/html"));
+    // Without the cookie the report is closed on this server.
+    let closed = plain_client()
+        .get(server.url(&report_link))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(closed.status(), StatusCode::UNAUTHORIZED);
     server.stop().await;
 }
