@@ -50,6 +50,20 @@ fn in_ns(ns: &str, args: &[&str]) -> Result<(), String> {
     ip(&full)
 }
 
+/// A third octet X whose 10.213.X.0/24 no interface of this machine uses yet (another run of
+/// this test, say), starting from `seed`.
+fn free_subnet(seed: u64) -> u8 {
+    let in_use = Command::new("ip")
+        .args(["-4", "-o", "addr", "show"])
+        .output()
+        .map(|out| String::from_utf8_lossy(&out.stdout).into_owned())
+        .unwrap_or_default();
+    (0..250u64)
+        .map(|i| ((seed + i) % 250) as u8 + 1)
+        .find(|x| !in_use.contains(&format!(" 10.213.{x}.")))
+        .unwrap_or(1)
+}
+
 impl Net {
     /// A bridge with the server's address (10.213.X.1) and `workers` namespaces, each with a
     /// veth pair to the bridge and the address 10.213.X.(10 + i).
@@ -65,7 +79,7 @@ impl Net {
         let seed = u64::from(std::process::id()) * 7919 + u64::from(nanos);
         let mut net = Net {
             tag: format!("{:05x}", seed % 0xf_ffff),
-            subnet: (seed % 250) as u8 + 1,
+            subnet: free_subnet(seed),
             namespaces: Vec::new(),
             bridge_made: false,
         };
