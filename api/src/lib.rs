@@ -601,7 +601,7 @@ pub struct AnalysisView {
     /// Steepest-ascent (or descent, towards the target) path; linear models only.
     pub steepest_path: Option<Value>,
     /// Summary of the response over the completed runs: `n`, `mean`, `std`, `min`, `max`, and
-    /// with a target `relative_error_pct` of the mean.
+    /// with a target the `target` and (unless it is 0) the `relative_error_pct` of the mean.
     #[serde(default)]
     pub summary: Option<Value>,
     /// Why the fit or a later step could not be computed.
