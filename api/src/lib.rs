@@ -601,10 +601,11 @@ pub struct AnalysisView {
     pub fit: Option<Value>,
     /// Settings predicted to hit the target (only when the batch has a target).
     pub optimum: Option<Value>,
-    /// Steepest-ascent (or descent, towards the target) path; linear models only.
+    /// Steepest-ascent (or descent, towards the target) path; linear models only. Beside the
+    /// path's own fields: its `direction` and the model's `predicted` response at each point.
     pub steepest_path: Option<Value>,
     /// Summary of the response over the completed runs: `n`, `mean`, `std`, `min`, `max`, and
-    /// with a target `relative_error_pct` of the mean.
+    /// with a target the `target` and (unless it is 0) the `relative_error_pct` of the mean.
     #[serde(default)]
     pub summary: Option<Value>,
     /// Why the fit or a later step could not be computed.

@@ -6,13 +6,13 @@ use crate::table::RunTable;
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use repose_doe::design::{direction_toward, Factor, PathClamp, PathDirection, SteepestPath};
+use repose_doe::report;
 use repose_doe::{
     fit_with_options, optimize, AnovaRow, Coefficient, Fit, FitOptions, Goal, Model, ModelKind,
     Objective, OptimumOptions, OptimumResult, Region,
 };
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -178,12 +178,7 @@ pub fn analyze_table(table: &RunTable, args: &AnalyzeArgs) -> Result<String> {
         }
     }
 
-    let kind = match args.model {
-        ModelArg::Linear => ModelKind::Linear,
-        ModelArg::TwoFi => ModelKind::TwoFactorInteraction,
-        ModelArg::Quadratic => ModelKind::Quadratic,
-    };
-    let model = Model::new(&factors, kind)?;
+    let model = Model::new(&factors, model_kind(args.model))?;
     let options = FitOptions {
         response_name: args.response.clone(),
         backward_alpha: args.eliminate,
@@ -390,238 +385,37 @@ fn steepest_path(
     })
 }
 
+/// The path as the one analysis renderer prints it.
 fn render_path(path: &PathReport, response: &str) -> String {
-    let mut out = String::new();
-    let name = match path.direction {
-        PathDirection::Ascent => "ascent",
-        PathDirection::Descent => "descent",
-    };
-    let _ = writeln!(
-        out,
-        "\nSteepest {name} path (base factor {}; the other factors stay at their centre)",
-        path.base_factor
-    );
-    let steps: Vec<String> = path
-        .factors
-        .iter()
-        .zip(&path.step_natural)
-        .map(|(f, s)| format!("{f} {s:+.4}"))
-        .collect();
-    let _ = writeln!(out, "Step: {}", steps.join(", "));
-    let mut header = format!("{:>4}", "step");
-    for f in &path.factors {
-        let _ = write!(header, " {f:>9}");
-    }
-    let _ = writeln!(out, "{header} {:>12}", format!("predicted {response}"));
-    for (i, (point, y)) in path.points.iter().zip(&path.predicted).enumerate() {
-        let mut line = format!("{:>4}", i + 1);
-        for v in point {
-            let _ = write!(line, " {v:>9.4}");
-        }
-        let _ = writeln!(out, "{line} {y:>12.3}");
-    }
-    out
+    report::render_path(
+        &report::PathText {
+            direction: Some(path.direction),
+            factors: &path.factors,
+            base_factor: &path.base_factor,
+            step_natural: &path.step_natural,
+            points: &path.points,
+            predicted: Some(&path.predicted),
+        },
+        response,
+    )
 }
 
-fn fmt_p(p: Option<f64>) -> String {
-    match p {
-        Some(p) if p < 1e-4 => "< 0.0001".to_owned(),
-        Some(p) => format!("{p:.4}"),
-        None => String::new(),
-    }
-}
-
-fn fmt_opt(v: Option<f64>, f: impl Fn(f64) -> String) -> String {
-    v.map(f).unwrap_or_default()
-}
-
-/// Four significant digits but at least two decimals, like the paper's tables (3586.09).
-fn sig4(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let digits = (3 - v.abs().log10().floor() as i32).clamp(2, 8) as usize;
-    format!("{v:.digits$}")
-}
-
+/// The fit and the settings for the target, as the one analysis renderer
+/// ([`repose_doe::report`], shared with the job server) prints them.
 fn render_text(fit: &Fit, args: &AnalyzeArgs, optimum: Option<&OptimumResult>) -> String {
-    let mut out = String::new();
-    let stats = fit.stats();
-    let model_name = match args.model {
-        ModelArg::Linear => "linear",
-        ModelArg::TwoFi => "two-factor interaction",
-        ModelArg::Quadratic => "quadratic",
-    };
-    let _ = writeln!(
-        out,
-        "Response: {}   Model: {} ({} terms, {} runs)",
-        fit.response(),
-        model_name,
-        fit.model().len(),
-        fit.n_runs()
-    );
-    for step in fit.elimination() {
-        let _ = writeln!(out, "  eliminated {} (p = {})", step.term, fmt_p(step.p));
-    }
-    let _ = writeln!(out, "\nANOVA (partial sums of squares, Type III)");
-    let _ = writeln!(
-        out,
-        "{:<14} {:>14} {:>4} {:>12} {:>10} {:>10}",
-        "Source", "Sum of Squares", "df", "Mean Square", "F-value", "p-value"
-    );
-    for row in fit.anova() {
-        let verdict = match (row.source.as_str(), row.p) {
-            ("Model", Some(p)) => {
-                if p < 0.05 {
-                    "  significant"
-                } else {
-                    "  not significant"
-                }
-            }
-            ("Lack of Fit", Some(p)) => {
-                if p < 0.05 {
-                    "  significant"
-                } else {
-                    "  not significant"
-                }
-            }
-            _ => "",
-        };
-        let _ = writeln!(
-            out,
-            "{:<14} {:>14} {:>4} {:>12} {:>10} {:>10}{}",
-            row.source,
-            sig4(row.sum_sq),
-            row.df,
-            fmt_opt(row.mean_sq, sig4),
-            fmt_opt(row.f, sig4),
-            fmt_p(row.p),
-            verdict
-        );
-    }
-    let _ = writeln!(out, "\nFit statistics");
-    let lines = [
-        (
-            "Std. Dev.",
-            sig4(stats.std_dev),
-            "R²",
-            format!("{:.4}", stats.r2),
-        ),
-        (
-            "Mean",
-            sig4(stats.mean),
-            "Adjusted R²",
-            format!("{:.4}", stats.adj_r2),
-        ),
-        (
-            "C.V. %",
-            fmt_opt(stats.cv_percent, |v| format!("{v:.2}")),
-            "Predicted R²",
-            fmt_opt(stats.pred_r2, |v| format!("{v:.4}")),
-        ),
-        (
-            "PRESS",
-            fmt_opt(stats.press, sig4),
-            "Adeq Precision",
-            fmt_opt(stats.adeq_precision, |v| format!("{v:.4}")),
-        ),
-    ];
-    for (a, av, b, bv) in lines {
-        let _ = writeln!(out, "{a:<10} {av:>10}     {b:<15} {bv:>8}");
-    }
-    let level = (fit.confidence() * 100.0).round();
-    let _ = writeln!(out, "\nCoefficients in terms of coded factors");
-    let _ = writeln!(
-        out,
-        "{:<14} {:>10} {:>10} {:>11} {:>11} {:>8}",
-        "Term",
-        "Estimate",
-        "Std. Error",
-        format!("{level}% CI Low"),
-        format!("{level}% CI High"),
-        "VIF"
-    );
-    for c in fit.coefficients() {
-        let _ = writeln!(
-            out,
-            "{:<14} {:>10} {:>10} {:>11} {:>11} {:>8}",
-            c.term,
-            sig4(c.estimate),
-            sig4(c.std_error),
-            sig4(c.ci_low),
-            sig4(c.ci_high),
-            fmt_opt(c.vif, |v| format!("{v:.2}"))
-        );
-    }
-    let _ = writeln!(out, "\nFinal equation in terms of coded factors");
-    let mut equation = format!("{} =", fit.response());
-    for c in fit.coefficients() {
-        let sign = if c.estimate < 0.0 { '-' } else { '+' };
-        let magnitude = sig4(c.estimate.abs());
-        if c.term == "Intercept" {
-            let _ = write!(equation, " {sign}{magnitude}");
-        } else {
-            let _ = write!(equation, " {sign} {magnitude}·{}", c.term);
-        }
-    }
-    let _ = writeln!(out, "{equation}");
-
+    let mut out = report::render_fit(&report::FitText::of(fit, model_kind(args.model)));
     if let (Some(opt), Some(target)) = (optimum, args.target) {
-        let _ = writeln!(
-            out,
-            "\nSettings predicted to give {} = {target}",
-            fit.response()
-        );
-        if opt.level_set {
-            let _ = writeln!(
-                out,
-                "The target is met on a whole level set, not at one point: {} of {} starts reached \
-                 desirability {:.4} at {} distinct settings spread over {:.3} coded units. \
-                 Listed closest to the design centre first; any of them is an equally valid answer.",
-                opt.starts_at_best,
-                opt.starts,
-                opt.best_desirability,
-                opt.distinct_at_best,
-                opt.spread
-            );
-            let ranges: Vec<String> = opt
-                .factors
-                .iter()
-                .enumerate()
-                .map(|(i, f)| format!("{f} {:+.3}..{:+.3}", opt.coded_min[i], opt.coded_max[i]))
-                .collect();
-            let _ = writeln!(
-                out,
-                "Coded extent of the solutions found: {}",
-                ranges.join(", ")
-            );
-        }
-        let mut header = format!("{:>3}", "#");
-        for f in &opt.factors {
-            let _ = write!(header, " {:>9}", format!("{f} coded"));
-        }
-        let natural = opt.solutions.first().is_some_and(|s| s.natural.is_some());
-        if natural {
-            for f in &opt.factors {
-                let _ = write!(header, " {f:>9}");
-            }
-        }
-        let _ = writeln!(out, "{header} {:>10} {:>12}", "predicted", "desirability");
-        for (i, s) in opt.solutions.iter().enumerate() {
-            let mut line = format!("{:>3}", i + 1);
-            for v in &s.coded {
-                let _ = write!(line, " {v:>9.4}");
-            }
-            if let Some(nat) = &s.natural {
-                for v in nat {
-                    let _ = write!(line, " {v:>9.4}");
-                }
-            }
-            let predicted = s.responses.first().map(|r| r.value).unwrap_or(f64::NAN);
-            let _ = writeln!(out, "{line} {predicted:>10.3} {:>12.4}", s.desirability);
-        }
+        out += &report::render_optimum(fit.response(), target, opt);
     }
     out
+}
+
+fn model_kind(model: ModelArg) -> ModelKind {
+    match model {
+        ModelArg::Linear => ModelKind::Linear,
+        ModelArg::TwoFi => ModelKind::TwoFactorInteraction,
+        ModelArg::Quadratic => ModelKind::Quadratic,
+    }
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@
 
 use std::collections::BTreeMap;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::FitError;
 use crate::fit::Ols;
@@ -18,7 +18,7 @@ use crate::model::Model;
 use crate::stats::f_sf;
 
 /// Kind of an ANOVA row.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AnovaSource {
     /// The whole model (corrected for the mean).
@@ -37,7 +37,7 @@ pub enum AnovaSource {
 
 /// One ANOVA row. `mean_sq` is absent for rows without degrees of freedom and
 /// for the total; `f` and `p` only for rows that are tested.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AnovaRow {
     /// `Model`, a term name, `Residual`, `Lack of Fit`, `Pure Error` or `Cor Total`.
     pub source: String,
@@ -56,7 +56,7 @@ pub struct AnovaRow {
 }
 
 /// Fit statistics of the Design-Expert "Fit Statistics" table.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FitStats {
     /// `1 - SSE/SST`.
     pub r2: f64,

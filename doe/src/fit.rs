@@ -57,7 +57,7 @@ impl Default for FitOptions {
 }
 
 /// One row of the coefficient table.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Coefficient {
     /// Term name (`Intercept`, `A`, `A:B`, `A^2`, ...).
     pub term: String,
@@ -78,7 +78,7 @@ pub struct Coefficient {
 }
 
 /// One step of backward elimination.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EliminationStep {
     /// Term removed.
     pub term: String,

@@ -8,6 +8,7 @@ pub mod error;
 pub mod fit;
 pub mod model;
 pub mod optimum;
+pub mod report;
 mod stats;
 
 pub use anova::{AnovaRow, AnovaSource, FitStats};

@@ -284,7 +284,7 @@ impl Default for OptimumOptions {
 }
 
 /// Prediction of one response at a solution.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PredictedResponse {
     /// Response name.
     pub name: String,
@@ -295,7 +295,7 @@ pub struct PredictedResponse {
 }
 
 /// One optimum found.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Solution {
     /// Factor settings in coded units.
     pub coded: Vec<f64>,
@@ -310,7 +310,7 @@ pub struct Solution {
 }
 
 /// Result of [`optimize`].
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OptimumResult {
     /// Factor names.
     pub factors: Vec<String>,

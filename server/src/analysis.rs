@@ -7,9 +7,12 @@ use std::fmt::Write as _;
 
 use repose_api::{AnalysisView, ModelName};
 use repose_doe::design::{direction_toward, CcdVariant, DesignKind, PathDirection, SteepestPath};
+use repose_doe::report::{self, sig4};
 use repose_doe::{
-    fit_with_options, optimize, Fit, FitOptions, Goal, Model, Objective, OptimumOptions, Region,
+    fit_with_options, optimize, AnovaRow, Coefficient, EliminationStep, Fit, FitOptions, FitStats,
+    Goal, Model, Objective, OptimumOptions, OptimumResult, Region,
 };
+use serde::Deserialize;
 use serde_json::Value;
 
 use crate::db::{now_ms, AnalysisInput};
@@ -103,9 +106,11 @@ fn summarise(observed: &[f64], target: Option<f64>) -> Option<Value> {
     let mut summary = serde_json::json!({
         "n": observed.len(), "mean": mean, "std": std, "min": min, "max": max,
     });
-    if let Some(target) = target.filter(|t| *t != 0.0) {
+    if let Some(target) = target {
         summary["target"] = target.into();
-        summary["relative_error_pct"] = (100.0 * (mean - target).abs() / target.abs()).into();
+        if target != 0.0 {
+            summary["relative_error_pct"] = (100.0 * (mean - target).abs() / target.abs()).into();
+        }
     }
     Some(summary)
 }
@@ -173,10 +178,55 @@ fn steepest_path(input: &AnalysisInput, fit: &Fit) -> Result<Value, String> {
     let path = SteepestPath::spec(coefficients, input.factors.clone(), direction)
         .build()
         .map_err(|err| err.to_string())?;
-    serde_json::to_value(path).map_err(|err| err.to_string())
+    let predicted = path
+        .coded_points
+        .iter()
+        .map(|point| fit.try_predict(point))
+        .collect::<Result<Vec<f64>, _>>()
+        .map_err(|err| err.to_string())?;
+    let mut value = serde_json::to_value(path).map_err(|err| err.to_string())?;
+    // Beside the path itself: which way it goes and what the model predicts along it, for the
+    // text rendering.
+    value["direction"] = serde_json::to_value(direction).map_err(|err| err.to_string())?;
+    value["predicted"] = predicted.into();
+    Ok(value)
 }
 
-/// Plain-text report: coefficients, ANOVA, fit statistics, optimum and path.
+/// The stored fit, read back for [`render_text`]: the parts the one renderer prints.
+#[derive(Debug, Deserialize)]
+struct StoredFit {
+    response: String,
+    model: StoredModel,
+    n_runs: usize,
+    coefficients: Vec<Coefficient>,
+    anova: Vec<AnovaRow>,
+    stats: FitStats,
+    #[serde(default)]
+    elimination: Vec<EliminationStep>,
+    confidence: f64,
+}
+
+#[derive(Debug, Deserialize)]
+struct StoredModel {
+    terms: Vec<String>,
+}
+
+/// The stored steepest path with the direction and predictions [`steepest_path`] adds.
+#[derive(Debug, Deserialize)]
+struct StoredPath {
+    factor_names: Vec<String>,
+    base_factor: usize,
+    step_natural: Vec<f64>,
+    points: Vec<Vec<f64>>,
+    #[serde(default)]
+    direction: Option<PathDirection>,
+    #[serde(default)]
+    predicted: Option<Vec<f64>>,
+}
+
+/// Plain-text report (`?format=text`, what `repose up` and `repose watch` print): the batch and
+/// its response summary, then the fit, the settings for the target and the path exactly as
+/// `repose analyze` prints them ([`repose_doe::report`], the one renderer).
 pub fn render_text(view: &AnalysisView) -> String {
     let mut out = String::new();
     let _ = writeln!(
@@ -191,16 +241,21 @@ pub fn render_text(view: &AnalysisView) -> String {
     if let Some(error) = &view.error {
         let _ = writeln!(out, "note: {error}");
     }
-    if let Some(summary) = &view.summary {
-        let number = |key: &str| summary.get(key).and_then(Value::as_f64);
+    let number = |key: &str| {
+        view.summary
+            .as_ref()
+            .and_then(|summary| summary.get(key))
+            .and_then(Value::as_f64)
+    };
+    if view.summary.is_some() {
         let _ = write!(
             out,
-            "\n{}: mean {:.4}, std {:.4}, min {:.4}, max {:.4} over {} runs",
+            "{}: mean {}, std {}, min {}, max {} over {} runs",
             view.response,
-            number("mean").unwrap_or(f64::NAN),
-            number("std").unwrap_or(f64::NAN),
-            number("min").unwrap_or(f64::NAN),
-            number("max").unwrap_or(f64::NAN),
+            sig4(number("mean").unwrap_or(f64::NAN)),
+            sig4(number("std").unwrap_or(f64::NAN)),
+            sig4(number("min").unwrap_or(f64::NAN)),
+            sig4(number("max").unwrap_or(f64::NAN)),
             view.runs_used
         );
         if let (Some(target), Some(error)) = (number("target"), number("relative_error_pct")) {
@@ -211,112 +266,149 @@ pub fn render_text(view: &AnalysisView) -> String {
         }
         let _ = writeln!(out);
     }
-    if let Some(fit) = &view.fit {
-        let _ = writeln!(out, "\nCoefficients (coded units)");
-        let _ = writeln!(
-            out,
-            "{:<16} {:>12} {:>12} {:>10}",
-            "term", "estimate", "std error", "p"
-        );
-        for c in array(fit, "coefficients") {
-            let _ = writeln!(
-                out,
-                "{:<16} {:>12} {:>12} {:>10}",
-                text(c, "term"),
-                number(c, "estimate"),
-                number(c, "std_error"),
-                number(c, "p_value")
-            );
+    let fit = view.fit.as_ref().map(StoredFit::deserialize);
+    match &fit {
+        Some(Ok(fit)) => {
+            out.push('\n');
+            out += &report::render_fit(&report::FitText {
+                response: &fit.response,
+                model: model_kind(view.model),
+                n_terms: fit.model.terms.len(),
+                n_runs: fit.n_runs,
+                elimination: &fit.elimination,
+                anova: &fit.anova,
+                stats: &fit.stats,
+                coefficients: &fit.coefficients,
+                confidence: fit.confidence,
+            });
         }
-        let _ = writeln!(out, "\nANOVA");
-        let _ = writeln!(
-            out,
-            "{:<16} {:>12} {:>4} {:>12} {:>10} {:>10}",
-            "source", "sum sq", "df", "mean sq", "F", "p"
-        );
-        for row in array(fit, "anova") {
-            let _ = writeln!(
-                out,
-                "{:<16} {:>12} {:>4} {:>12} {:>10} {:>10}",
-                text(row, "source"),
-                number(row, "sum_sq"),
-                row.get("df").map(Value::to_string).unwrap_or_default(),
-                number(row, "mean_sq"),
-                number(row, "f"),
-                number(row, "p")
-            );
+        Some(Err(err)) => {
+            let _ = writeln!(out, "\nthe stored fit could not be read: {err}");
         }
-        if let Some(stats) = fit.get("stats") {
-            let _ = writeln!(
-                out,
-                "\nR² {}   adjusted R² {}   predicted R² {}   std dev {}",
-                number(stats, "r2"),
-                number(stats, "adj_r2"),
-                number(stats, "pred_r2"),
-                number(stats, "std_dev")
-            );
-        }
+        None => {}
     }
-    if let Some(optimum) = &view.optimum {
-        let best_desirability = number(optimum, "best_desirability");
-        let _ = writeln!(out, "\nOptimum (best desirability {best_desirability})");
-        if let Some(best) = array(optimum, "solutions").first() {
-            let natural = best.get("natural").and_then(Value::as_array);
-            for (i, name) in view.factors.iter().enumerate() {
-                let value = natural
-                    .and_then(|n| n.get(i))
-                    .map(|v| format_number(v.as_f64()))
-                    .unwrap_or_default();
-                let _ = writeln!(out, "  {name:<14} {value:>12}");
-            }
-            for response in array(best, "responses") {
-                let _ = writeln!(
-                    out,
-                    "  predicted {} = {}",
-                    text(response, "name"),
-                    number(response, "value")
-                );
-            }
-        }
+    let optimum = view
+        .optimum
+        .as_ref()
+        .and_then(|value| OptimumResult::deserialize(value).ok());
+    if let (Some(optimum), Some(target)) = (optimum, number("target")) {
+        out += &report::render_optimum(&view.response, target, &optimum);
     }
-    if let Some(path) = &view.steepest_path {
-        let _ = writeln!(out, "\nSteepest path (natural units)");
-        let _ = writeln!(out, "step  {}", view.factors.join("  "));
-        for (step, point) in array(path, "points").iter().enumerate() {
-            let values: Vec<String> = point
-                .as_array()
-                .map(|p| p.iter().map(|v| format_number(v.as_f64())).collect())
-                .unwrap_or_default();
-            let _ = writeln!(out, "{step:<5} {}", values.join("  "));
-        }
+    let path = view
+        .steepest_path
+        .as_ref()
+        .and_then(|value| StoredPath::deserialize(value).ok());
+    if let Some(path) = path {
+        let base = path
+            .factor_names
+            .get(path.base_factor)
+            .map_or("?", String::as_str);
+        out += &report::render_path(
+            &report::PathText {
+                direction: path.direction,
+                factors: &path.factor_names,
+                base_factor: base,
+                step_natural: &path.step_natural,
+                points: &path.points,
+                predicted: path.predicted.as_deref(),
+            },
+            &view.response,
+        );
     }
     out
 }
 
-fn array<'v>(value: &'v Value, key: &str) -> &'v [Value] {
-    value
-        .get(key)
-        .and_then(Value::as_array)
-        .map(Vec::as_slice)
-        .unwrap_or(&[])
-}
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
 
-fn text(value: &Value, key: &str) -> String {
-    value
-        .get(key)
-        .and_then(Value::as_str)
-        .unwrap_or("")
-        .to_owned()
-}
+    use repose_api::BatchState;
+    use repose_doe::design::{DesignKind, Factor};
+    use repose_doe::ModelKind;
+    use uuid::Uuid;
 
-fn number(value: &Value, key: &str) -> String {
-    format_number(value.get(key).and_then(Value::as_f64))
-}
+    use super::*;
 
-fn format_number(value: Option<f64>) -> String {
-    match value {
-        Some(v) if v != 0.0 && (v.abs() >= 1e5 || v.abs() < 1e-3) => format!("{v:.4e}"),
-        Some(v) => format!("{v:.4}"),
-        None => "-".to_owned(),
+    /// A 2² factorial with centre points, y = 30 + 4 mu − 1.5 e + a little noise.
+    fn input(target: Option<f64>) -> AnalysisInput {
+        let points = [
+            [-1.0, -1.0],
+            [1.0, -1.0],
+            [-1.0, 1.0],
+            [1.0, 1.0],
+            [0.0, 0.0],
+            [0.0, 0.0],
+            [0.0, 0.0],
+        ];
+        let noise = [0.05, -0.03, 0.02, -0.04, 0.01, -0.02, 0.03];
+        AnalysisInput {
+            batch_id: Uuid::nil(),
+            state: BatchState::Completed,
+            factors: vec![
+                Factor::new("mu", 0.2, 0.6).unwrap(),
+                Factor::new("e", 0.3, 0.9).unwrap(),
+            ],
+            design_kind: DesignKind::FullFactorial,
+            response: "angle_deg".into(),
+            model: ModelName::Linear,
+            target,
+            base_seed: 7,
+            completed: points
+                .iter()
+                .zip(noise)
+                .map(|(x, n)| {
+                    let y = 30.0 + 4.0 * x[0] - 1.5 * x[1] + n;
+                    (x.to_vec(), BTreeMap::from([("angle_deg".to_owned(), y)]))
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_text_form_is_the_one_renderer_over_the_stored_analysis() {
+        let input = input(Some(33.0));
+        let view = analyse(&input);
+        assert_eq!(view.error, None);
+        // As stored and read back by the database.
+        let stored: AnalysisView =
+            serde_json::from_str(&serde_json::to_string(&view).unwrap()).unwrap();
+        let text = render_text(&stored);
+
+        // The same fit, live, rendered as `repose analyze` renders it.
+        let (rows, response): (Vec<&[f64]>, Vec<f64>) = input
+            .completed
+            .iter()
+            .map(|(x, m)| (x.as_slice(), m["angle_deg"]))
+            .unzip();
+        let model = Model::new(&["mu", "e"], ModelKind::Linear).unwrap();
+        let options = FitOptions {
+            response_name: "angle_deg".into(),
+            ..FitOptions::default()
+        };
+        let fit = fit_with_options(&model, &rows, &response, &options).unwrap();
+        let expected = report::render_fit(&report::FitText::of(&fit, ModelKind::Linear));
+        assert!(text.contains(&expected), "{text}\n---\n{expected}");
+        assert!(expected.contains("< 0.0001"), "{expected}");
+        assert!(text.contains("Fit statistics\nStd. Dev."), "{text}");
+        assert!(
+            text.contains("\nSettings predicted to give angle_deg = 33\n"),
+            "{text}"
+        );
+        assert!(
+            text.contains("The target is met on a whole level set"),
+            "a two-factor plane meets a target on a line: {text}"
+        );
+        assert!(
+            text.contains("\nSteepest ascent path (base factor mu;"),
+            "{text}"
+        );
+        assert!(text.contains("predicted angle_deg"), "{text}");
+    }
+
+    #[test]
+    fn a_target_of_zero_is_kept_for_the_text_form() {
+        let summary = summarise(&[1.0, 2.0], Some(0.0)).unwrap();
+        assert_eq!(summary["target"], 0.0);
+        assert!(summary.get("relative_error_pct").is_none());
     }
 }

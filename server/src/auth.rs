@@ -13,6 +13,11 @@
 //!
 //! A missing, malformed, unknown or revoked token is 401 with `WWW-Authenticate: Bearer`.
 //!
+//! The status page's sign-in stores a token in the [`SESSION_COOKIE`] (HttpOnly,
+//! SameSite=Strict). That cookie stands for the token on [`Access::Read`] endpoints only, so
+//! the page's links (campaign reports, analyses) work in a browser; an endpoint that changes
+//! state never accepts it, and a forged cross-site form can therefore never act with it.
+//!
 //! With [`crate::Config::private_reads`], reads are narrowed further: no anonymous reads, a
 //! worker token reads only `GET /v1/jobs` (its own workers' jobs), and a user token reads only
 //! its own batches and campaigns (the handlers check ownership; lists are filtered).
@@ -95,6 +100,9 @@ pub struct Caller {
     pub role: TokenRole,
 }
 
+/// Name of the cookie in which the status page's sign-in keeps the token.
+pub const SESSION_COOKIE: &str = "repose_token";
+
 /// Random hex digits after the role prefix.
 const SECRET_HEX_DIGITS: usize = 32;
 
@@ -134,7 +142,7 @@ fn hex(bytes: &[u8]) -> String {
 }
 
 /// The token of an `Authorization: Bearer <token>` header; `Ok(None)` when there is no header.
-fn bearer(headers: &HeaderMap) -> Result<Option<&str>, AppError> {
+pub(crate) fn bearer(headers: &HeaderMap) -> Result<Option<&str>, AppError> {
     let Some(value) = headers.get(header::AUTHORIZATION) else {
         return Ok(None);
     };
@@ -148,6 +156,61 @@ fn bearer(headers: &HeaderMap) -> Result<Option<&str>, AppError> {
         ));
     }
     Ok(Some(token.trim()))
+}
+
+/// The value of the [`SESSION_COOKIE`] among the request's `Cookie` headers, if any.
+pub(crate) fn cookie_token(headers: &HeaderMap) -> Option<&str> {
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|value| value.to_str().ok())
+        .flat_map(|value| value.split(';'))
+        .filter_map(|pair| pair.trim().split_once('='))
+        .find(|(name, _)| *name == SESSION_COOKIE)
+        .map(|(_, value)| value.trim())
+}
+
+/// Who may read the status page, decided by the same rules as the API's reads.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum PageReader {
+    /// May read: the token's caller, or `None` for an anonymous reader under `open_read`.
+    Allowed(Option<Caller>),
+    /// Must sign in first, for this reason.
+    SignIn(SignInReason),
+}
+
+/// Why the status page asks for a token instead of showing the server.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum SignInReason {
+    /// No token was presented and the server does not allow anonymous reads.
+    NoToken,
+    /// The token presented (typed in, or kept in the cookie) is malformed, unknown or revoked.
+    Refused,
+    /// A worker token, on a server with private reads (worker tokens read only their jobs).
+    WorkerToken,
+}
+
+/// Decides what the holder of `token` (or nobody, `None`) may see on the status page.
+/// Refusals are outcomes, not errors; only a failing database is an error.
+pub(crate) async fn page_reader(
+    state: &AppState,
+    token: Option<&str>,
+) -> Result<PageReader, AppError> {
+    let Some(token) = token else {
+        return Ok(if state.config.open_read && !state.config.private_reads {
+            PageReader::Allowed(None)
+        } else {
+            PageReader::SignIn(SignInReason::NoToken)
+        });
+    };
+    match authenticate(state, token).await {
+        Ok(caller) if state.config.private_reads && caller.role == TokenRole::Worker => {
+            Ok(PageReader::SignIn(SignInReason::WorkerToken))
+        }
+        Ok(caller) => Ok(PageReader::Allowed(Some(caller))),
+        Err(AppError::Unauthorized(_)) => Ok(PageReader::SignIn(SignInReason::Refused)),
+        Err(other) => Err(other),
+    }
 }
 
 /// Looks up the presented token: 401 unless it exists and is not revoked.
@@ -182,8 +245,14 @@ pub async fn authorize(
     if access == Access::Public {
         return Ok(next.run(request).await);
     }
-    let caller = match bearer(request.headers())? {
-        Some(token) => Some(authenticate(&state, token).await?),
+    let presented = match bearer(request.headers())? {
+        Some(token) => Some(token.to_owned()),
+        // The sign-in cookie stands for its token on reads only (see the module docs).
+        None if access == Access::Read => cookie_token(request.headers()).map(str::to_owned),
+        None => None,
+    };
+    let caller = match presented {
+        Some(token) => Some(authenticate(&state, &token).await?),
         None => None,
     };
     match (access, &caller) {
@@ -274,6 +343,19 @@ mod tests {
         ] {
             assert!(!well_formed(bad), "{bad}");
         }
+    }
+
+    #[test]
+    fn the_session_cookie_is_found_among_others() {
+        let mut headers = HeaderMap::new();
+        assert_eq!(cookie_token(&headers), None);
+        headers.append(header::COOKIE, "theme=dark; other=1".parse().unwrap());
+        assert_eq!(cookie_token(&headers), None);
+        headers.append(
+            header::COOKIE,
+            "a=b; repose_token=rp_user_x ;c=d".parse().unwrap(),
+        );
+        assert_eq!(cookie_token(&headers), Some("rp_user_x"));
     }
 
     #[test]

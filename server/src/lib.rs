@@ -31,6 +31,7 @@ mod db;
 mod error;
 mod metrics;
 mod orchestrate;
+mod page;
 mod routes;
 mod submit;
 pub mod tokens;

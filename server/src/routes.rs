@@ -108,7 +108,8 @@ const fn ep(
     }
 }
 
-/// Every endpoint of the server.
+/// Every endpoint of the API. The HTML status page and its sign-in (`/`, `/sign-in`,
+/// `/sign-out`) are not API and are routed by [`crate::page`].
 pub const ENDPOINTS: &[Endpoint] = &[
     ep(Verb::Get, "/healthz", Access::Public, |m| on(m, health)),
     ep(Verb::Get, "/openapi.json", Access::Public, |m| {
@@ -182,6 +183,7 @@ pub fn app(state: AppState) -> Router {
         );
     }
     router
+        .merge(crate::page::routes())
         .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
         .method_not_allowed_fallback(|| async {
             AppError::MethodNotAllowed("method not allowed on this endpoint".into())
@@ -271,8 +273,14 @@ type Reader = Option<Extension<Caller>>;
 
 /// What `reader` may see under the server's read policy.
 fn read_scope<'a>(state: &AppState, reader: &'a Reader) -> ReadScope<'a> {
-    match reader {
-        Some(Extension(caller)) if state.config.private_reads => match caller.role {
+    scope_of(state, reader.as_ref().map(|Extension(caller)| caller))
+}
+
+/// What `caller` (`None`: an anonymous reader) may see under the server's read policy; the
+/// status page uses it too.
+pub(crate) fn scope_of<'a>(state: &AppState, caller: Option<&'a Caller>) -> ReadScope<'a> {
+    match caller {
+        Some(caller) if state.config.private_reads => match caller.role {
             crate::TokenRole::User => ReadScope::User(&caller.name),
             crate::TokenRole::Worker => ReadScope::Worker(&caller.name),
         },

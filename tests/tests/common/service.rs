@@ -99,9 +99,21 @@ pub fn start_server(
     lease_s: f64,
     name: &str,
 ) -> (Proc, String, u16) {
+    start_server_at(dir, db, &format!("127.0.0.1:{port}"), lease_s, name)
+}
+
+/// Starts `repose server` listening on `listen` (`ADDRESS:PORT`, port 0: any) and waits for its
+/// "listening on" line.
+pub fn start_server_at(
+    dir: &Path,
+    db: &Path,
+    listen: &str,
+    lease_s: f64,
+    name: &str,
+) -> (Proc, String, u16) {
     let (log, file) = log_file(dir, name);
     let mut child = Command::new(repose_bin())
-        .args(["server", "--listen", &format!("127.0.0.1:{port}"), "--db"])
+        .args(["server", "--listen", listen, "--db"])
         .arg(db)
         .args(["--lease-s", &lease_s.to_string()])
         .env("RUST_LOG", "info")
@@ -126,10 +138,16 @@ pub fn start_server(
 impl Service {
     /// A server on a fresh database with one user and one worker token.
     pub fn start(dir: &Path, lease_s: f64) -> Service {
+        Service::start_at(dir, lease_s, "127.0.0.1")
+    }
+
+    /// [`Service::start`] with the server listening on `address` (any port).
+    pub fn start_at(dir: &Path, lease_s: f64, address: &str) -> Service {
         let db = dir.join("repose.db");
         let user_token = create_token(&db, "tester", "user");
         let worker_token = create_token(&db, "workers", "worker");
-        let (server, url, port) = start_server(dir, &db, 0, lease_s, "server");
+        let (server, url, port) =
+            start_server_at(dir, &db, &format!("{address}:0"), lease_s, "server");
         Service {
             dir: dir.to_owned(),
             db,
@@ -175,8 +193,22 @@ impl Service {
 
     /// Starts `repose worker` with the worker token; `name` names its log file.
     pub fn start_worker(&self, name: &str, extra: &[&str]) -> Proc {
+        self.start_worker_via(name, &[], extra)
+    }
+
+    /// [`Service::start_worker`] through a launcher (e.g. `ip netns exec NS`), which must exec
+    /// the worker so that killing the child kills the worker.
+    pub fn start_worker_via(&self, name: &str, launcher: &[&str], extra: &[&str]) -> Proc {
         let (log, file) = log_file(&self.dir, name);
-        let child = Command::new(repose_bin())
+        let mut command = match launcher.split_first() {
+            Some((program, args)) => {
+                let mut command = Command::new(program);
+                command.args(args).arg(repose_bin());
+                command
+            }
+            None => Command::new(repose_bin()),
+        };
+        let child = command
             .args(["worker", "--server", &self.url, "--threads", "1"])
             .args(extra)
             .env("REPOSE_WORKER_TOKEN", &self.worker_token)
