@@ -358,6 +358,7 @@ pub(crate) fn build_pair_list(
     let radius = &particles.radius;
     let index_at_build = &particles.index_at_build;
     let carry_rolling = with_rolling_history && previous.rolling.len() == previous.partner.len();
+    let periodic = domain.periodic_x || domain.periodic_y;
 
     struct ChunkPairs {
         counts: Vec<u32>,
@@ -377,11 +378,17 @@ pub(crate) fn build_pair_list(
                 rolling: Vec::new(),
             };
             let mut cells = Vec::with_capacity(27);
+            // Particles are sorted by cell, so runs of them share one neighbourhood.
+            let mut cells_of = usize::MAX;
             for i in range {
                 let start = out.partner.len();
                 let pi = positions[i];
                 let ri = radius[i];
-                grid.neighbour_cells(pi, &mut cells);
+                let cell = grid.cell_of(pi);
+                if cell != cells_of {
+                    grid.neighbour_cells(pi, &mut cells);
+                    cells_of = cell;
+                }
                 for &c in &cells {
                     for &j in grid.cell(c) {
                         let j = j as usize;
@@ -389,7 +396,11 @@ pub(crate) fn build_pair_list(
                             continue;
                         }
                         let raw = positions[j] - pi;
-                        let d = domain.minimum_image(raw);
+                        let d = if periodic {
+                            domain.minimum_image(raw)
+                        } else {
+                            raw
+                        };
                         let reach = ri + radius[j] + skin;
                         if d.norm_squared() < reach * reach {
                             let wraps = if d == raw { 0 } else { WRAPS };
