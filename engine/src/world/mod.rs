@@ -22,6 +22,11 @@
 //! - **Determinism.** Every parallel loop works on fixed chunks of [`CHUNK`] particles, so
 //!   results are bit-identical for any thread count, and the fused and parallel dispatch
 //!   paths call the same kernel functions with the same arguments (tested).
+//! - **Continuous positions between builds.** Integration never wraps a position across a
+//!   periodic face; the rebuild does, and marks the pairs that are closest across a face
+//!   (`WRAPS`). Between builds every other pair's separation is the plain difference, so the
+//!   contact loop takes the minimum image only for the marked pairs (tested against the same
+//!   collision in open space).
 //! - **No I/O.** The engine reads and writes no files; callers hand it meshes and bytes.
 
 mod kernel;
