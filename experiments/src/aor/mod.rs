@@ -51,6 +51,7 @@ pub use run::{
 };
 pub(crate) use spec::check_contacts;
 pub use spec::{
-    AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, MaterialProps, Materials, Protocol,
-    RollingSpec, SettleSpec, SpecError, PRESETS,
+    sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry,
+    MaterialProps, Materials, Protocol, RollingSpec, SettleSpec, SpecError, MASS_LADDER,
+    PAPER_SAND_SIEVE_CURVE, PRESETS, SIZE_LADDER,
 };
