@@ -37,6 +37,7 @@
 
 mod measure;
 mod picture;
+mod rest;
 mod run;
 mod spec;
 
@@ -45,9 +46,10 @@ pub use measure::{
     MeasureSettings, ProjectionPlane, SideProjection,
 };
 pub use picture::{side_view_svg, PictureOptions};
+pub use rest::{not_at_rest, NotAtRest};
 pub use run::{
-    run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy, GrainBudget, Progress,
-    RunStatus, SettleCheck,
+    measure_heap, rig_meshes, run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy,
+    GrainBudget, Progress, RunStatus, SettleCheck,
 };
 pub(crate) use spec::check_contacts;
 pub use spec::{

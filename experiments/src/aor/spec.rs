@@ -487,8 +487,8 @@ impl AorSpec {
 
     /// [`AorSpec::paper_scale`] with the sand's grading curve ([`PAPER_SAND_SIEVE_CURVE`])
     /// scaled to a 2 mm volume-mean diameter: the same mass and about the same number of grains
-    /// as `paper-scale`, spread from 0.80 to 5.3 mm. The time step follows the smallest grain
-    /// (2.5 × shorter than at 2 mm).
+    /// as `paper-scale`, spread from 0.77 to 5.1 mm (the outlet is 3.3 largest grains wide).
+    /// The time step follows the smallest grain (2.6 × shorter than at 2 mm).
     pub fn paper_scale_sieve() -> AorSpec {
         let mut spec = AorSpec::paper_scale();
         spec.particle = sieve_curve_with_mean_diameter(&PAPER_SAND_SIEVE_CURVE, 0.002)
@@ -508,7 +508,7 @@ impl AorSpec {
             "size-2.5mm" => Ok(AorSpec::paper_scale_with_grains(0.0025)),
             "size-1.5mm" => Ok(AorSpec::paper_scale_with_grains(0.0015)),
             "mass-100g" => {
-                let mut spec = AorSpec::paper();
+                let mut spec = AorSpec::paper_scale();
                 spec.total_mass = 0.1;
                 Ok(spec)
             }
