@@ -146,8 +146,9 @@ mod tests {
 
     #[test]
     fn a_slumping_heap_reports_its_rate_over_the_last_window() {
-        let settle = SettleSpec::default(); // window 3, threshold 1e-4, tolerance 0.3°
-                                            // Falls 8°/s at first, then 5°/s over the last three checks.
+        // Window 3, threshold 1e-4, tolerance 0.3°. The angle falls 8°/s at first, then 5°/s
+        // over the last three checks.
+        let settle = SettleSpec::default();
         let checks = [
             check(1.0, 9e-4, Some(40.0), 1000),
             check(1.1, 6e-4, Some(39.2), 1000),
