@@ -168,3 +168,99 @@ fn paper_scale_presets_stand_on_the_paper_rig_with_room_for_the_heap() {
         }
     }
 }
+
+#[test]
+fn the_paper_scale_table_3_batch_is_table_3_at_the_table_2_levels() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let batch: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(format!(
+            "{root}/examples/batches/paper_table3_paper_scale.json"
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(batch["experiment"]["kind"], "aor");
+    let preset = batch["experiment"]["preset"].as_str().unwrap();
+    assert!(PRESETS.contains(&preset), "{preset}");
+    assert_eq!(preset, "paper-scale");
+    let factors = batch["factors"].as_array().unwrap();
+    let table3 =
+        std::fs::read_to_string(format!("{root}/examples/paper/plackett_burman_table3.csv"))
+            .unwrap();
+    let points = batch["design"]["points"].as_array().unwrap();
+    let rows: Vec<&str> = table3.lines().skip(1).collect();
+    assert_eq!(points.len(), rows.len());
+    for (point, row) in points.iter().zip(rows) {
+        let coded: Vec<f64> = row
+            .split(',')
+            .skip(1)
+            .take(6)
+            .map(|c| c.parse().unwrap())
+            .collect();
+        for (k, factor) in factors.iter().enumerate() {
+            let level = if coded[k] < 0.0 { "low" } else { "high" };
+            assert_eq!(
+                point[k], factor[level],
+                "row {row}, factor {}",
+                factor["name"]
+            );
+        }
+    }
+    // Every factor path is a field of the spec.
+    let mut spec = AorSpec::preset(preset).unwrap();
+    for factor in factors {
+        spec.set(factor["path"].as_str().unwrap(), &factor["low"].to_string())
+            .unwrap();
+    }
+}
+
+#[test]
+fn the_ladder_batches_run_the_ladder_presets() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    for (file, members) in [
+        ("ladder_grain_size.json", SIZE_LADDER.to_vec()),
+        ("ladder_mass.json", MASS_LADDER.to_vec()),
+    ] {
+        let batch: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(format!("{root}/examples/batches/{file}")).unwrap(),
+        )
+        .unwrap();
+        let base = AorSpec::preset(batch["experiment"]["preset"].as_str().unwrap()).unwrap();
+        let path = batch["factors"][0]["path"].as_str().unwrap();
+        let points = batch["design"]["points"].as_array().unwrap();
+        assert_eq!(points.len(), members.len(), "{file}");
+        for (point, member) in points.iter().zip(members) {
+            let mut spec = base.clone();
+            spec.set(path, &point[0].to_string()).unwrap();
+            let preset = AorSpec::preset(member).unwrap();
+            // The same test as the preset; only the time cap may differ (a batch shares one).
+            assert_eq!(spec.particle, preset.particle, "{file}: {member}");
+            assert_eq!(spec.total_mass, preset.total_mass, "{file}: {member}");
+            assert_eq!(spec.funnel, preset.funnel, "{file}: {member}");
+            assert_eq!(spec.base, preset.base, "{file}: {member}");
+            assert_eq!(spec.soil_soil, preset.soil_soil, "{file}: {member}");
+            assert_eq!(spec.soil_steel, preset.soil_steel, "{file}: {member}");
+            spec.validate().unwrap();
+        }
+    }
+}
+
+#[test]
+fn the_paper_scale_campaign_uses_the_paper_scale_preset() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let read = |name: &str| -> serde_json::Value {
+        serde_json::from_str(
+            &std::fs::read_to_string(format!("{root}/examples/campaigns/{name}")).unwrap(),
+        )
+        .unwrap()
+    };
+    let scale = read("paper_scale.json");
+    let default = read("paper_default.json");
+    assert_eq!(scale["experiment"]["preset"], "paper-scale");
+    // Otherwise the 50 g campaign's request, so the two compare.
+    for key in ["factors", "target", "tolerance", "alpha", "seed", "screening", "steepest"] {
+        assert_eq!(scale[key], default[key], "{key}");
+    }
+    assert_eq!(scale["response_surface"], default["response_surface"]);
+    assert_eq!(scale["verification"], default["verification"]);
+}
