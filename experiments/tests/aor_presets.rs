@@ -258,7 +258,15 @@ fn the_paper_scale_campaign_uses_the_paper_scale_preset() {
     let default = read("paper_default.json");
     assert_eq!(scale["experiment"]["preset"], "paper-scale");
     // Otherwise the 50 g campaign's request, so the two compare.
-    for key in ["factors", "target", "tolerance", "alpha", "seed", "screening", "steepest"] {
+    for key in [
+        "factors",
+        "target",
+        "tolerance",
+        "alpha",
+        "seed",
+        "screening",
+        "steepest",
+    ] {
         assert_eq!(scale[key], default[key], "{key}");
     }
     assert_eq!(scale["response_surface"], default["response_surface"]);
