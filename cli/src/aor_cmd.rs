@@ -2,25 +2,33 @@
 //! engine, measured automatically.
 //!
 //! Prints the result as JSON (angles in degrees, lengths in metres, masses in kg, times in s;
-//! the key `angle_deg` is the mean flank angle) and writes `result.json`, `pile.svg` (side view
-//! with the fitted flank lines; axes in mm) and `final.csv` (every grain) into `--out`.
+//! the key `angle_deg` is the mean flank angle; `not_at_rest` the creep rate and kinetic energy
+//! of a heap that did not come to rest, also one line on stderr) and writes `result.json`,
+//! `pile.svg` (side view with the fitted flank lines; axes in mm) and `final.csv` (every grain)
+//! into `--out`. `--measure FILE` measures a particle file instead of running; `--export-stl
+//! DIR` writes the rig's meshes.
 
 use crate::sim::write_file;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_engine::output::write_particles_csv;
-use repose_experiments::aor::{run_aor, AorSpec, Control};
+use repose_experiments::aor::{
+    measure_heap, rig_meshes, run_aor, side_view_svg, AorSpec, Control, PictureOptions,
+};
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, Args)]
 pub struct AorArgs {
     /// Experiment spec (JSON, an `AorSpec`); fields not given take the preset's values.
     #[arg(long)]
     pub spec: Option<PathBuf>,
-    /// Start from a preset: `default` (1 mm grains, 50 g, a few minutes) or `fast` (1.25 mm
-    /// grains, 12 g, seconds). Ignored with --spec.
+    /// Start from a preset: `default` (2 mm grains, 50 g, a few minutes), `fast` (2.5 mm
+    /// grains, 30 g, for tests), `paper-scale` (the paper's 0.3 kg of 2 mm grains, ~12 min on 2
+    /// threads), `fine` (0.3 kg of 1 mm grains, hours), the ladder members `size-2.5mm`,
+    /// `size-1.5mm`, `mass-100g`, `paper-scale-sieve` (docs/aor.md). With --spec, the fields
+    /// the file does not give.
     #[arg(long, default_value = "default")]
     pub preset: String,
     /// Change one field by its dotted path, e.g. `soil_soil.rolling_friction=0.3`,
@@ -28,7 +36,7 @@ pub struct AorArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Directory for result.json, pile.svg and final.csv (created if missing).
-    #[arg(long, required_unless_present = "print_spec")]
+    #[arg(long, required_unless_present_any = ["print_spec", "measure", "export_stl"])]
     pub out: Option<PathBuf>,
     /// Worker threads (default: all cores). Results are identical for any count.
     #[arg(long, env = "REPOSE_THREADS")]
@@ -36,6 +44,17 @@ pub struct AorArgs {
     /// Print the effective spec (after --preset/--spec/--set) as JSON and exit.
     #[arg(long)]
     pub print_spec: bool,
+    /// Do not run: measure the heap in a particle file (CSV with a header naming the columns
+    /// x, y, z and radius (or r), in metres, in the run's frame: plate top at z = 0, funnel
+    /// axis at x = y = 0; e.g. a run's final.csv or a peer engine's dump) as a run measures its
+    /// own heap, with the effective spec's rig and settings. Prints the measurement as JSON;
+    /// with --out also writes measure.json and pile.svg there.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["print_spec", "export_stl"])]
+    pub measure: Option<PathBuf>,
+    /// Do not run: write the effective spec's rig as ASCII STL files (base.stl, funnel.stl;
+    /// metres, the run's frame) into DIR, e.g. for a peer engine.
+    #[arg(long, value_name = "DIR", conflicts_with = "print_spec")]
+    pub export_stl: Option<PathBuf>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -56,6 +75,18 @@ pub fn run(args: &AorArgs) -> Result<()> {
     if args.print_spec {
         println!("{}", spec.to_json());
         return Ok(());
+    }
+    if let Some(dir) = &args.export_stl {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        for (name, mesh) in rig_meshes(&spec)? {
+            let path = dir.join(format!("{name}.stl"));
+            write_file(&path, |w| w.write_all(mesh.to_stl_ascii(name).as_bytes()))?;
+            eprintln!("{} ({} triangles)", path.display(), mesh.triangles().len());
+        }
+        return Ok(());
+    }
+    if let Some(file) = &args.measure {
+        return measure_file(&spec, file, args.out.as_deref());
     }
     let out = args.out.as_ref().expect("clap requires --out");
     let threads = match args.threads {
@@ -98,6 +129,106 @@ pub fn run(args: &AorArgs) -> Result<()> {
     write_file(&out.join("final.csv"), |w| {
         write_particles_csv(w, run.world.particles())
     })?;
+    println!("{json}");
+    if let Some(gap) = &run.result.not_at_rest {
+        eprintln!("not at rest ({:?}): {gap}", run.result.ended_by);
+    }
+    Ok(())
+}
+
+/// Grain centres and radii from a CSV whose header names x, y, z and radius (or r).
+fn read_particles_csv(text: &str, source: &Path) -> Result<(Vec<[f64; 3]>, Vec<f64>)> {
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    let header: Vec<String> = lines
+        .next()
+        .with_context(|| format!("{} is empty", source.display()))?
+        .split(',')
+        .map(|h| h.trim().to_ascii_lowercase())
+        .collect();
+    let column = |names: &[&str]| {
+        header
+            .iter()
+            .position(|h| names.contains(&h.as_str()))
+            .with_context(|| {
+                format!(
+                    "{}: the header has no column {} (found: {})",
+                    source.display(),
+                    names.join(" or "),
+                    header.join(",")
+                )
+            })
+    };
+    let (ix, iy, iz, ir) = (
+        column(&["x"])?,
+        column(&["y"])?,
+        column(&["z"])?,
+        column(&["radius", "r"])?,
+    );
+    let (mut positions, mut radii) = (Vec::new(), Vec::new());
+    for (n, line) in lines.enumerate() {
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let value = |i: usize| -> Result<f64> {
+            let v: f64 = fields
+                .get(i)
+                .with_context(|| format!("{} line {}: too few columns", source.display(), n + 2))?
+                .parse()
+                .with_context(|| {
+                    format!("{} line {}: column {}", source.display(), n + 2, header[i])
+                })?;
+            if !v.is_finite() {
+                bail!(
+                    "{} line {}: {} is not finite",
+                    source.display(),
+                    n + 2,
+                    header[i]
+                );
+            }
+            Ok(v)
+        };
+        positions.push([value(ix)?, value(iy)?, value(iz)?]);
+        let r = value(ir)?;
+        if r <= 0.0 {
+            bail!(
+                "{} line {}: radius must be > 0, got {r}",
+                source.display(),
+                n + 2
+            );
+        }
+        radii.push(r);
+    }
+    Ok((positions, radii))
+}
+
+fn measure_file(spec: &AorSpec, file: &Path, out: Option<&Path>) -> Result<()> {
+    let text =
+        std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
+    let (positions, radii) = read_particles_csv(&text, file)?;
+    let m = measure_heap(spec, &positions, &radii)
+        .with_context(|| format!("no measurable heap in {}", file.display()))?;
+    let json = serde_json::to_string_pretty(&m)?;
+    if let Some(out) = out {
+        std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+        write_file(&out.join("measure.json"), |w| writeln!(w, "{json}"))?;
+        let options = PictureOptions {
+            title: Some(format!(
+                "{}: angle of repose {:.2}° (left {:.2}°, right {:.2}°)",
+                file.display(),
+                m.angle_deg,
+                m.left_deg,
+                m.right_deg
+            )),
+            ..PictureOptions::default()
+        };
+        // Draw the heap only (not grains still in the funnel).
+        let (heap, heap_radii): (Vec<[f64; 3]>, Vec<f64>) = positions
+            .iter()
+            .zip(&radii)
+            .filter(|(p, _)| p[2] <= m.apex[2])
+            .map(|(p, r)| (*p, *r))
+            .unzip();
+        let svg = side_view_svg(&m, &heap, &heap_radii, &options);
+        write_file(&out.join("pile.svg"), |w| w.write_all(svg.as_bytes()))?;
+    }
     println!("{json}");
     Ok(())
 }

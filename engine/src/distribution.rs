@@ -222,6 +222,66 @@ impl SizeDistribution {
         }
     }
 
+    /// Mean of the cubed diameter over the particles drawn, E[d³] (m³; number-weighted): a mass
+    /// M of density ρ makes M / (ρ π/6 E[d³]) particles in expectation.
+    pub fn mean_cubed_diameter(&self) -> f64 {
+        // E[d³] for d number-uniform on [lo, hi] (diameters).
+        let uniform = |lo: f64, hi: f64| {
+            if hi > lo {
+                (hi.powi(4) - lo.powi(4)) / (4.0 * (hi - lo))
+            } else {
+                lo.powi(3)
+            }
+        };
+        match &self.spec {
+            SizeDistributionSpec::Fixed { radius } => (2.0 * radius).powi(3),
+            SizeDistributionSpec::Uniform {
+                min_radius,
+                max_radius,
+            } => uniform(2.0 * min_radius, 2.0 * max_radius),
+            SizeDistributionSpec::Normal {
+                mean_radius,
+                std_dev,
+                min_radius,
+                max_radius,
+            } => {
+                // Simpson's rule over the truncation window, weight ∝ the normal density.
+                const INTERVALS: usize = 2000;
+                let h = (max_radius - min_radius) / INTERVALS as f64;
+                let (mut weight, mut moment) = (0.0, 0.0);
+                for k in 0..=INTERVALS {
+                    let r = min_radius + h * k as f64;
+                    let simpson = if k == 0 || k == INTERVALS {
+                        1.0
+                    } else if k % 2 == 1 {
+                        4.0
+                    } else {
+                        2.0
+                    };
+                    let density = (-0.5 * ((r - mean_radius) / std_dev).powi(2)).exp();
+                    weight += simpson * density;
+                    moment += simpson * density * (2.0 * r).powi(3);
+                }
+                if weight > 0.0 {
+                    moment / weight
+                } else {
+                    (2.0 * mean_radius.clamp(*min_radius, *max_radius)).powi(3)
+                }
+            }
+            SizeDistributionSpec::SieveTable { .. } => {
+                let mut previous = 0.0;
+                self.sieve_bins
+                    .iter()
+                    .map(|b| {
+                        let p = b.cumulative_number - previous;
+                        previous = b.cumulative_number;
+                        p * uniform(b.lo, b.hi)
+                    })
+                    .sum()
+            }
+        }
+    }
+
     /// Largest radius that can be sampled (m).
     pub fn max_radius(&self) -> f64 {
         match &self.spec {

@@ -1198,6 +1198,43 @@ fn simple_distributions_sample_within_bounds() {
 }
 
 #[test]
+fn mean_cubed_diameter_is_what_sampling_gives() {
+    let specs = [
+        SizeDistributionSpec::Fixed { radius: 1e-3 },
+        SizeDistributionSpec::Uniform {
+            min_radius: 1e-3,
+            max_radius: 2e-3,
+        },
+        SizeDistributionSpec::Normal {
+            mean_radius: 1e-3,
+            std_dev: 0.2e-3,
+            min_radius: 0.8e-3,
+            max_radius: 1.6e-3,
+        },
+        SizeDistributionSpec::SieveTable {
+            rows: desert_sand_table(),
+        },
+    ];
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for spec in specs {
+        let dist = SizeDistribution::new(spec.clone()).unwrap();
+        let n = 200_000;
+        let sampled = (0..n)
+            .map(|_| (2.0 * dist.sample(&mut rng)).powi(3))
+            .sum::<f64>()
+            / n as f64;
+        let exact = dist.mean_cubed_diameter();
+        assert!(
+            (sampled / exact - 1.0).abs() < 0.01,
+            "{spec:?}: sampled E[d³] {sampled:e}, computed {exact:e}"
+        );
+    }
+    // Fixed and uniform in closed form.
+    let fixed = SizeDistribution::new(SizeDistributionSpec::Fixed { radius: 1e-3 }).unwrap();
+    assert!((fixed.mean_cubed_diameter() - 8e-9).abs() < 1e-21);
+}
+
+#[test]
 fn distribution_validation_and_serde() {
     let err = |spec| SizeDistribution::new(spec).unwrap_err();
     let rows = desert_sand_table();

@@ -132,3 +132,47 @@ fn escaped_grains_make_an_escaped_run() {
     assert_eq!(r.status, RunStatus::Escaped, "{r:?}");
     assert_eq!(r.angle_deg, None);
 }
+
+#[test]
+fn a_heap_cut_by_the_time_cap_reports_how_far_from_rest_it_was() {
+    // The fast pour: insertion ends at 0.2 s, checks every 50 ms from 0.3 s; the heap is
+    // measurable from 0.5 s and at rest by kinetic energy at 0.7 s. Cut at 0.62 s, it ends by
+    // the time cap while slumping (40° → 26° over the last three checks) with the kinetic energy
+    // ~40× the threshold.
+    let mut spec = AorSpec::fast();
+    spec.settle.min_time = 0.1;
+    spec.settle.check_interval = 0.05;
+    spec.settle.angle_window = 3;
+    spec.time_cap = 0.42;
+    let run = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
+    let r = run.result;
+    eprintln!("{:?} {:?} {:?}", r.ended_by, r.message, r.not_at_rest);
+    assert_eq!(r.ended_by, EndedBy::TimeCap, "{r:?}");
+    assert_eq!(r.status, RunStatus::NotSettled);
+    assert!(!r.came_to_rest);
+    let gap = r
+        .not_at_rest
+        .expect("a capped run says how far from rest it was");
+    let rate = gap
+        .creep_deg_per_s
+        .expect("angles were measured at the last checks");
+    assert!(rate < -10.0, "a slumping heap: creep {rate} °/s");
+    assert_eq!(gap.creep_checks, 3);
+    assert!(
+        gap.kinetic_energy_ratio > gap.kinetic_energy_threshold,
+        "{gap:?}"
+    );
+    assert_eq!(
+        gap.kinetic_energy_threshold,
+        spec.settle.kinetic_energy_threshold
+    );
+    let message = r.message.clone().unwrap();
+    assert!(message.contains("°/s"), "{message}");
+    // The JSON carries it, and a result written before the field existed still parses.
+    let json = serde_json::to_value(&r).unwrap();
+    assert!(json["not_at_rest"]["creep_deg_per_s"].is_number(), "{json}");
+    let mut old = json.clone();
+    old.as_object_mut().unwrap().remove("not_at_rest");
+    let parsed: AorResult = serde_json::from_value(old).unwrap();
+    assert_eq!(parsed.not_at_rest, None);
+}

@@ -82,3 +82,107 @@ fn aor_bad_set_is_one_line_and_exit_2() {
         assert!(err.starts_with("error:"), "{err}");
     }
 }
+
+/// A 35° cone of 1 mm spheres on z = 0 (as in the measurement's doc example), plus grains held
+/// up in the funnel above the outlet, which the measurement must leave out.
+fn cone_csv() -> String {
+    let (radius, base_radius) = (1e-3, 0.03);
+    let (tan, cos) = (35f64.to_radians().tan(), 35f64.to_radians().cos());
+    let mut csv = String::from("id,type,x,y,z,radius\n");
+    let mut id = 0;
+    for i in -16i32..=16 {
+        for j in -16i32..=16 {
+            let lift = f64::from((i * 7 + j * 13).rem_euclid(5)) * 0.4e-3;
+            for k in 0..16 {
+                let p = [
+                    f64::from(i) * 2e-3,
+                    f64::from(j) * 2e-3,
+                    radius + lift + f64::from(k) * 2e-3,
+                ];
+                let surface = (base_radius - p[0].hypot(p[1])) * tan;
+                if p[2] <= surface - radius / cos {
+                    id += 1;
+                    csv += &format!("{id},1,{},{},{},{radius}\n", p[0], p[1], p[2]);
+                }
+            }
+        }
+    }
+    for k in 0..40 {
+        // In the funnel, 110-130 mm up: not part of the heap.
+        let z = 0.11 + 0.0005 * f64::from(k);
+        csv += &format!(
+            "{},1,{},0.0,{z},{radius}\n",
+            id + k + 1,
+            0.004 * f64::from(k % 3)
+        );
+    }
+    csv
+}
+
+#[test]
+fn aor_measure_reads_a_particle_file_as_a_run_measures_its_heap() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("peer.csv");
+    std::fs::write(&file, cone_csv()).unwrap();
+    let out = dir.path().join("measured");
+    let o = repose(&[
+        "aor",
+        "--preset",
+        "paper-scale",
+        "--measure",
+        file.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let m: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let angle = m["angle_deg"].as_f64().unwrap();
+    assert!((angle - 35.0).abs() < 1.5, "{angle}");
+    // The held-up grains are left out: the apex is the cone's, not the funnel's.
+    assert!(m["pile_height_m"].as_f64().unwrap() < 0.03, "{m}");
+    let saved: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("measure.json")).unwrap()).unwrap();
+    assert_eq!(saved, m);
+    assert!(std::fs::read_to_string(out.join("pile.svg"))
+        .unwrap()
+        .contains("<svg"));
+
+    // A file without a radius column: one line naming it, exit 2.
+    std::fs::write(&file, "x,y,z\n0,0,0.001\n").unwrap();
+    let o = repose(&["aor", "--measure", file.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = stderr(&o);
+    assert!(err.contains("radius"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+}
+
+#[test]
+fn aor_export_stl_writes_the_rig_in_the_run_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = repose(&[
+        "aor",
+        "--preset",
+        "paper-scale",
+        "--export-stl",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let read = |name: &str| {
+        let bytes = std::fs::read(dir.path().join(name)).unwrap();
+        assert!(bytes.starts_with(b"solid"), "{name} is ASCII STL");
+        repose_engine::mesh::TriMesh::from_stl_bytes(&bytes, 1.0).unwrap()
+    };
+    let (lo, hi) = read("base.stl").aabb();
+    assert!(
+        (lo.x + 0.15).abs() < 1e-9 && (hi.x - 0.15).abs() < 1e-9,
+        "{lo:?} {hi:?}"
+    );
+    assert!(lo.z.abs() < 1e-9 && hi.z.abs() < 1e-9);
+    let (lo, hi) = read("funnel.stl").aabb();
+    // Outlet 105 mm up, 40 mm cone; top diameter 63.2 mm.
+    assert!(
+        (lo.z - 0.105).abs() < 1e-6 && (hi.z - 0.145).abs() < 1e-6,
+        "{lo:?} {hi:?}"
+    );
+    assert!((hi.x - 0.0316).abs() < 1e-3, "{hi:?}");
+}

@@ -37,6 +37,7 @@
 
 mod measure;
 mod picture;
+mod rest;
 mod run;
 mod spec;
 
@@ -45,12 +46,14 @@ pub use measure::{
     MeasureSettings, ProjectionPlane, SideProjection,
 };
 pub use picture::{side_view_svg, PictureOptions};
+pub use rest::{not_at_rest, NotAtRest};
 pub use run::{
-    run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy, GrainBudget, Progress,
-    RunStatus, SettleCheck,
+    measure_heap, rig_meshes, run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy,
+    GrainBudget, Progress, RunStatus, SettleCheck,
 };
 pub(crate) use spec::check_contacts;
 pub use spec::{
-    AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, MaterialProps, Materials, Protocol,
-    RollingSpec, SettleSpec, SpecError, PRESETS,
+    sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry,
+    MaterialProps, Materials, Protocol, RollingSpec, SettleSpec, SpecError, MASS_LADDER,
+    PAPER_SAND_SIEVE_CURVE, PRESETS, SIZE_LADDER,
 };

@@ -15,13 +15,14 @@ use repose_engine::kinematics::{Motion, TranslationSegment};
 use repose_engine::material::rayleigh_time;
 use repose_engine::math::{Pose, Vec3};
 use repose_engine::mesh::generators::{cylinder, funnel, plane};
-use repose_engine::mesh::{FunnelSpec, FunnelTop};
+use repose_engine::mesh::{FunnelSpec, FunnelTop, TriMesh};
 use repose_engine::neighbor::Domain;
 use repose_engine::world::{Geometry, World, WorldConfig};
 use serde::{Deserialize, Serialize};
 
-use super::measure::{measure_angle_of_repose, AngleOfRepose};
+use super::measure::{measure_angle_of_repose, AngleOfRepose, MeasureError, MeasureSettings};
 use super::picture::{side_view_svg, PictureOptions};
+use super::rest::{not_at_rest, NotAtRest};
 use super::spec::{AorSpec, Protocol, SpecError};
 
 /// Why a run could not start (a finished run that found no heap is an [`AorResult`] with a
@@ -163,6 +164,11 @@ pub struct AorResult {
     pub wall_time_s: f64,
     pub ended_by: EndedBy,
     pub came_to_rest: bool,
+    /// How far from rest the heap was when the run ended without coming to rest (time or
+    /// wall-clock cap, cancel): the angle's creep rate over the last checks and the last kinetic
+    /// energy against the threshold. None when it came to rest or no check ran.
+    #[serde(default)]
+    pub not_at_rest: Option<NotAtRest>,
     pub checks: Vec<SettleCheck>,
 }
 
@@ -221,11 +227,9 @@ fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
     let g = 9.81;
 
     let half = 0.5 * spec.base.size;
-    let cells = ((spec.base.size / 0.02).round() as usize).clamp(1, 64);
     let base = Geometry {
         name: "base".into(),
-        mesh: plane(spec.base.size, spec.base.size, cells, cells)
-            .map_err(|e| build_error("base", e))?,
+        mesh: base_mesh(spec)?,
         motion: Motion::stationary(Pose::identity()),
         material: base_material,
     };
@@ -233,14 +237,7 @@ fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
     let (vessel, region, heap_top, ready_after, top_of_box) = match spec.protocol {
         Protocol::Funnel => {
             let f = &spec.funnel;
-            let mesh = funnel(&FunnelSpec {
-                wall_inclination_deg: f.wall_inclination_deg,
-                outlet_diameter: f.outlet_diameter,
-                outlet_height: f.outlet_height,
-                top: FunnelTop::ConeHeight(f.cone_height),
-                segments: f.segments,
-            })
-            .map_err(|e| build_error("funnel", e))?;
+            let mesh = funnel_mesh(spec)?;
             let rim_z = f.outlet_height + f.cone_height;
             let z_min = rim_z + 0.5 * d;
             let z_max = z_min + (4.0 * d).max(0.01);
@@ -251,9 +248,7 @@ fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
                 z_min,
                 z_max,
             };
-            // The heap region ends a grain below the outlet: grains resting in the outlet are
-            // held up by the funnel, not by the heap.
-            let heap_top = f.outlet_height - d;
+            let heap_top = heap_region_top(spec, d);
             // The last grains need to fall through the funnel and onto the heap.
             let ready = (2.0 * z_max / g).sqrt();
             (mesh, region, heap_top, ready, z_max)
@@ -352,6 +347,81 @@ fn build_rig(spec: &AorSpec) -> Result<Rig, AorError> {
     })
 }
 
+/// The base plate: a square of side `base.size`, top face at z = 0.
+fn base_mesh(spec: &AorSpec) -> Result<TriMesh, AorError> {
+    let cells = ((spec.base.size / 0.02).round() as usize).clamp(1, 64);
+    plane(spec.base.size, spec.base.size, cells, cells).map_err(|e| build_error("base", e))
+}
+
+/// The funnel around the z axis, outlet `funnel.outlet_height` above the plate.
+fn funnel_mesh(spec: &AorSpec) -> Result<TriMesh, AorError> {
+    let f = &spec.funnel;
+    funnel(&FunnelSpec {
+        wall_inclination_deg: f.wall_inclination_deg,
+        outlet_diameter: f.outlet_diameter,
+        outlet_height: f.outlet_height,
+        top: FunnelTop::ConeHeight(f.cone_height),
+        segments: f.segments,
+    })
+    .map_err(|e| build_error("funnel", e))
+}
+
+/// Top of the heap region for grains of (largest) diameter `d`: for the funnel a grain below
+/// the outlet (grains resting in the outlet are held up by the funnel, not by the heap); the
+/// tube's region is bounded by the tube's bottom as it lifts instead.
+fn heap_region_top(spec: &AorSpec, d: f64) -> f64 {
+    match spec.protocol {
+        Protocol::Funnel => spec.funnel.outlet_height - d,
+        Protocol::LiftedCylinder => f64::INFINITY,
+    }
+}
+
+/// The run's measurement settings: plate top at z = 0, the axis at x = y = 0.
+fn rig_measure_settings(spec: &AorSpec) -> MeasureSettings {
+    let mut settings = spec.measure.clone();
+    settings.base_z_m = 0.0;
+    settings.axis_xy_m = Some([0.0, 0.0]);
+    settings
+}
+
+/// The rig's static meshes in the run's frame (plate top at z = 0, axis x = y = 0), named
+/// `base` and `funnel`, e.g. to give a peer engine the same walls as STL. Funnel protocol only
+/// (the tube moves).
+pub fn rig_meshes(spec: &AorSpec) -> Result<Vec<(&'static str, TriMesh)>, AorError> {
+    spec.validate()?;
+    if spec.protocol != Protocol::Funnel {
+        return Err(AorError::Spec(SpecError::Invalid {
+            path: "protocol".into(),
+            reason: "only the funnel rig has static meshes to export".into(),
+        }));
+    }
+    Ok(vec![
+        ("base", base_mesh(spec)?),
+        ("funnel", funnel_mesh(spec)?),
+    ])
+}
+
+/// Measures a heap given as grain centres and radii in the run's frame (plate top at z = 0,
+/// funnel axis at x = y = 0) exactly as [`run_aor`] measures its own: only grains whose centre
+/// lies below the heap region's top (for the funnel, a largest-grain diameter below the outlet)
+/// count, with the spec's measurement settings. For particle files from elsewhere: a saved
+/// `final.csv`, a peer engine's dump.
+pub fn measure_heap(
+    spec: &AorSpec,
+    positions: &[[f64; 3]],
+    radii: &[f64],
+) -> Result<AngleOfRepose, MeasureError> {
+    let d = 2.0 * radii.iter().copied().fold(0.0, f64::max);
+    let top = heap_region_top(spec, d);
+    let (heap, heap_radii): (Vec<[f64; 3]>, Vec<f64>) = positions
+        .iter()
+        .zip(radii)
+        .filter(|(p, _)| p[2] < top)
+        .map(|(p, r)| (*p, *r))
+        .unzip();
+    measure_angle_of_repose(&heap, &heap_radii, &rig_measure_settings(spec))
+}
+
 fn factory_state(world: &World) -> (bool, f64, u64) {
     for source in world.sources() {
         if let ParticleSource::Factory(f) = source {
@@ -420,9 +490,7 @@ pub fn run_aor(
         ready_after,
     } = build_rig(spec)?;
     let g = 9.81;
-    let mut settings = spec.measure.clone();
-    settings.base_z_m = 0.0;
-    settings.axis_xy_m = Some([0.0, 0.0]);
+    let settings = rig_measure_settings(spec);
 
     let nominal_fill = spec.total_mass / spec.mass_rate;
     let mut insertion_end: Option<f64> = None;
@@ -564,6 +632,11 @@ pub fn run_aor(
         0.0
     };
     let came_to_rest = matches!(ended_by, EndedBy::KineticEnergy | EndedBy::AngleStable);
+    let rest_gap = if came_to_rest {
+        None
+    } else {
+        not_at_rest(&checks, &spec.settle)
+    };
     let (status, message) = if ended_by == EndedBy::Cancelled {
         (RunStatus::Cancelled, Some("cancelled".to_owned()))
     } else if insertion_end.is_none() {
@@ -588,7 +661,10 @@ pub fn run_aor(
     } else if !came_to_rest {
         (
             RunStatus::NotSettled,
-            Some(format!("the heap did not come to rest ({ended_by:?})")),
+            Some(match &rest_gap {
+                Some(gap) => format!("the heap did not come to rest ({ended_by:?}): {gap}"),
+                None => format!("the heap did not come to rest ({ended_by:?})"),
+            }),
         )
     } else {
         (RunStatus::Ok, None)
@@ -635,6 +711,7 @@ pub fn run_aor(
         wall_time_s: started.elapsed().as_secs_f64(),
         ended_by,
         came_to_rest,
+        not_at_rest: rest_gap,
         checks,
     };
     Ok(AorRun {
