@@ -55,7 +55,7 @@
 
 use repose_engine::contact::RollingModel;
 use repose_engine::distribution::SizeDistributionSpec;
-use repose_engine::material::{Interaction, Material, MaterialSet};
+use repose_engine::material::{Cohesion, Interaction, Material, MaterialSet};
 use serde::{Deserialize, Serialize};
 
 use super::measure::MeasureSettings;
@@ -351,11 +351,13 @@ impl AorSpec {
                 restitution: 0.45,
                 static_friction: 0.442,
                 rolling_friction: 0.140,
+                cohesion: Cohesion::None,
             },
             soil_steel: Interaction {
                 restitution: 0.40,
                 static_friction: 0.305,
                 rolling_friction: 0.50,
+                cohesion: Cohesion::None,
             },
             rolling_model: RollingSpec::Cdt,
             epsd_viscous_damping: default_epsd_damping(),
