@@ -117,7 +117,7 @@ fn jkr_pull_off_force_is_one_and_a_half_pi_gamma_r_star() {
             }
         };
         let samples = 20_000;
-        let (lo, hi) = (JKR_SEPARATION * unit, 2.0 * unit);
+        let (lo, hi) = (0.9999 * JKR_SEPARATION * unit, 2.0 * unit);
         let minimum = (0..=samples)
             .map(|k| net(lo + (hi - lo) * k as f64 / samples as f64))
             .fold(f64::INFINITY, f64::min);
