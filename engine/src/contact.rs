@@ -233,7 +233,9 @@ impl CohesionLaw {
             return None;
         }
         let s3 = jkr_root(d).powi(3);
-        Some(2.0 * std::f64::consts::PI * surface_energy * r_star * (4.0 / 3.0 * s3 * s3 - 2.0 * s3))
+        Some(
+            2.0 * std::f64::consts::PI * surface_energy * r_star * (4.0 / 3.0 * s3 * s3 - 2.0 * s3),
+        )
     }
 }
 

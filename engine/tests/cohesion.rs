@@ -113,7 +113,8 @@ fn jkr_pull_off_force_is_one_and_a_half_pi_gamma_r_star() {
             if overlap > 0.0 {
                 hertz(e, r_star, overlap) - law.attraction(r_star, overlap, || unreachable!())
             } else {
-                law.necking_force(r_star, overlap).expect("still in contact")
+                law.necking_force(r_star, overlap)
+                    .expect("still in contact")
             }
         };
         let samples = 20_000;
@@ -126,15 +127,22 @@ fn jkr_pull_off_force_is_one_and_a_half_pi_gamma_r_star() {
             "R* {r_star:.1e} m: smallest force {:.6e} N, 1.5 π γ R* = {pull_off:.6e} N",
             -minimum
         );
-        assert!((-minimum / pull_off - 1.0).abs() < 0.02, "{minimum} vs {pull_off}");
+        assert!(
+            (-minimum / pull_off - 1.0).abs() < 0.02,
+            "{minimum} vs {pull_off}"
+        );
         // At zero overlap JKR pulls with 8/9 of the pull-off force (4/3 π γ R*)...
         let at_zero = law.necking_force(r_star, 0.0).unwrap();
         assert!((at_zero / (-4.0 / 3.0 * PI * gamma * r_star) - 1.0).abs() < 1e-9);
         // ... and continuously so from the positive side.
         assert!((net(1e-9 * unit) / at_zero - 1.0).abs() < 1e-3);
         // The contact separates at δ = −0.4725 a0²/R*.
-        assert!(law.necking_force(r_star, 0.999 * JKR_SEPARATION * unit).is_some());
-        assert!(law.necking_force(r_star, 1.001 * JKR_SEPARATION * unit).is_none());
+        assert!(law
+            .necking_force(r_star, 0.999 * JKR_SEPARATION * unit)
+            .is_some());
+        assert!(law
+            .necking_force(r_star, 1.001 * JKR_SEPARATION * unit)
+            .is_none());
     }
     // The separation constant: x^1.5 = 1/4, D = x² − √x.
     let x: f64 = 0.25f64.powf(2.0 / 3.0);
@@ -145,7 +153,11 @@ fn jkr_pull_off_force_is_one_and_a_half_pi_gamma_r_star() {
 fn linear_cohesion_is_the_energy_density_times_the_intersection_area() {
     let k = 3.0e5;
     let law = CohesionLaw::new(&Cohesion::Linear { energy_density: k }, 1.0e8);
-    for (ri, rj, overlap) in [(1e-3, 1e-3, 1e-5), (1e-3, 2.5e-3, 4e-5), (2e-3, 0.7e-3, 1e-4)] {
+    for (ri, rj, overlap) in [
+        (1e-3, 1e-3, 1e-5),
+        (1e-3, 2.5e-3, 4e-5),
+        (2e-3, 0.7e-3, 1e-4),
+    ] {
         let dist = ri + rj - overlap;
         // The circle where the spheres intersect: its plane is x from i's centre, with
         // x = (d² + ri² − rj²) / (2 d), and its radius² is ri² − x².
@@ -155,7 +167,10 @@ fn linear_cohesion_is_the_energy_density_times_the_intersection_area() {
         let force = law.attraction(r_star, overlap, || {
             sphere_sphere_contact_radius2(ri, rj, dist * dist, overlap)
         });
-        println!("ri {ri} rj {rj} δ {overlap}: F {force:.6e} N, k A {:.6e} N", k * area);
+        println!(
+            "ri {ri} rj {rj} δ {overlap}: F {force:.6e} N, k A {:.6e} N",
+            k * area
+        );
         assert!((force / (k * area) - 1.0).abs() < 0.02);
         // Small overlaps: A ≈ 2 π R* δ.
         assert!((force / (k * 2.0 * PI * r_star * overlap) - 1.0).abs() < 0.06);
@@ -166,7 +181,13 @@ fn linear_cohesion_is_the_energy_density_times_the_intersection_area() {
     let area = PI * (r * r - (r - overlap).powi(2));
     assert!((force / (k * area) - 1.0).abs() < 0.02);
     // A zero coefficient is no cohesion at all.
-    assert!(!CohesionLaw::new(&Cohesion::Linear { energy_density: 0.0 }, 1e8).is_on());
+    assert!(!CohesionLaw::new(
+        &Cohesion::Linear {
+            energy_density: 0.0
+        },
+        1e8
+    )
+    .is_on());
     assert!(!CohesionLaw::new(&Cohesion::None, 1e8).is_on());
 }
 
@@ -239,11 +260,13 @@ fn a_grain_hangs_under_a_cohesive_plate_and_falls_from_a_clean_one() {
     let weight = grain_mass() * 9.81;
     // Net upward force on the grain at overlap δ: cohesion − Hertz − weight. Its maximum is at
     // δ* = (π k sqrt(R) / E*)²; the stable equilibrium is the root above δ*.
-    let net = |d: f64| {
-        k * PI * sphere_wall_contact_radius2(RADIUS, d) - hertz(e, RADIUS, d) - weight
-    };
+    let net =
+        |d: f64| k * PI * sphere_wall_contact_radius2(RADIUS, d) - hertz(e, RADIUS, d) - weight;
     let peak = (PI * k * RADIUS.sqrt() / e).powi(2);
-    assert!(net(peak) > 0.0, "the weight exceeds the largest cohesive hold");
+    assert!(
+        net(peak) > 0.0,
+        "the weight exceeds the largest cohesive hold"
+    );
     let expected = bisect(net, peak, 20.0 * peak);
     let z = hanging_grain(Cohesion::Linear { energy_density: k }, peak, 0.1);
     let overlap = RADIUS + z;
@@ -275,8 +298,12 @@ fn a_grain_hangs_under_a_cohesive_plate_and_falls_from_a_clean_one() {
 fn pair_overlap(cohesion: Cohesion, overlap: f64, seconds: f64) -> f64 {
     let mut world = world(cohesion, Vec3::zeros());
     let half = RADIUS - overlap / 2.0;
-    world.add_particle(grain(Vec3::new(-half, 0.0, 0.0))).unwrap();
-    world.add_particle(grain(Vec3::new(half, 0.0, 0.0))).unwrap();
+    world
+        .add_particle(grain(Vec3::new(-half, 0.0, 0.0)))
+        .unwrap();
+    world
+        .add_particle(grain(Vec3::new(half, 0.0, 0.0)))
+        .unwrap();
     world.run_until(seconds);
     let p = world.particles();
     2.0 * RADIUS - (p.position[1] - p.position[0]).norm()
