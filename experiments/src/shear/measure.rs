@@ -95,7 +95,9 @@ pub fn shear_strength(
     if !(residual_fraction > 0.0 && residual_fraction <= 1.0) {
         return Err(invalid("residual_fraction", "must be in (0, 1]"));
     }
-    if record.displacement_m.windows(2).any(|w| !(w[1] >= w[0])) {
+    if record.displacement_m.iter().any(|x| !x.is_finite())
+        || record.displacement_m.windows(2).any(|w| w[1] < w[0])
+    {
         return Err(invalid(
             "displacement_m",
             "must be finite and non-decreasing",
@@ -148,7 +150,7 @@ pub fn mohr_coulomb_fit(points: &[StrengthPoint]) -> Result<MohrCoulomb, ShearMe
         s.dedup();
         s.len()
     };
-    if points.len() < 2 || distinct < 2 || !(sxx > 0.0) {
+    if points.len() < 2 || distinct < 2 || sxx <= 0.0 {
         return Err(ShearMeasureError::TooFewStresses(distinct));
     }
     let sxy: f64 = points
