@@ -561,6 +561,39 @@ mod tests {
     }
 
     #[test]
+    fn a_cohesion_law_is_given_whole_and_replaces_the_presets_whole() {
+        let linear = json!({"model": "linear", "energy_density": 3.0e5});
+        let spec = prepare_spec(
+            "aor",
+            Some("fast"),
+            &json!({"soil_soil": {"cohesion": linear}}),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["cohesion"], linear);
+        assert_eq!(spec["soil_steel"]["cohesion"], json!({"model": "none"}));
+        // A different model over it replaces it (no leftover energy_density).
+        let jkr = json!({"model": "jkr", "surface_energy": 0.1});
+        let spec = prepare_spec(
+            "aor",
+            Some("fast"),
+            &merge_json(
+                json!({"soil_soil": {"cohesion": linear}}),
+                json!({"soil_soil": {"cohesion": jkr}}),
+            ),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["cohesion"], jkr);
+        let mut bad = spec.clone();
+        bad["soil_soil"]["cohesion"]["surface_energy"] = json!(-1.0);
+        match validate_spec("aor", &bad) {
+            Err(ExperimentError::InvalidSpec { path, .. }) => {
+                assert_eq!(path.as_deref(), Some("soil_soil.cohesion.surface_energy"))
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+
+    #[test]
     fn a_local_failure_is_not_permanent_and_a_bad_spec_is() {
         let local = ExperimentError::Local {
             message: "cannot start 4 simulation threads".into(),

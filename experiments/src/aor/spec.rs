@@ -562,6 +562,17 @@ pub(crate) fn check_contacts(
                 ));
             }
         }
+        let cohesion = match pair.cohesion {
+            Cohesion::None => None,
+            Cohesion::Linear { energy_density } => Some(("energy_density", energy_density)),
+            Cohesion::Jkr { surface_energy } => Some(("surface_energy", surface_energy)),
+        };
+        if let Some((field, v)) = cohesion.filter(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err((
+                format!("{name}.cohesion.{field}"),
+                format!("must be finite and >= 0, got {v}"),
+            ));
+        }
     }
     for (name, m) in [("soil", &materials.soil), ("steel", &materials.steel)] {
         for (field, v) in [("density", m.density), ("youngs_modulus", m.youngs_modulus)] {
