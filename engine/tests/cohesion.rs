@@ -471,3 +471,67 @@ fn cohesion_reads_from_json_and_bad_values_name_the_field() {
         "{message}"
     );
 }
+
+#[test]
+fn jkr_grains_pulled_apart_keep_attracting_past_zero_overlap() {
+    // Two JKR grains leave each other at 0.1 m/s relative speed. Past zero overlap the contact
+    // necks: it keeps pulling (and slowing them) until δ = −0.4725 a0²/R*; a contact lost at
+    // zero overlap would leave the speed unchanged from there on.
+    let gamma = 0.5;
+    // A step a hundredth of the usual, so the grains cross the µm necking range in ~35 steps.
+    let materials = table(Cohesion::Jkr {
+        surface_energy: gamma,
+    });
+    let dt = materials.rayleigh_time_step(GRAIN, RADIUS, 0.002);
+    let mut config = WorldConfig::new(dt, Domain::closed(Vec3::repeat(-0.1), Vec3::repeat(0.1)));
+    config.gravity = Vec3::zeros();
+    let mut world = World::new(materials, config).unwrap();
+    let overlap = 1e-6;
+    let half = RADIUS - overlap / 2.0;
+    for (side, v) in [(-1.0, -0.05), (1.0, 0.05)] {
+        world
+            .add_particle(ParticleSpec {
+                velocity: Vec3::new(v, 0.0, 0.0),
+                ..grain(Vec3::new(side * half, 0.0, 0.0))
+            })
+            .unwrap();
+    }
+    let e = e_star(&grain_material(), &grain_material());
+    let r_star = RADIUS / 2.0;
+    let a0 = (2.0 * PI * gamma * r_star * r_star / e).cbrt();
+    let separation = JKR_SEPARATION * a0 * a0 / r_star;
+    let state = |w: &World| {
+        let p = w.particles();
+        let gap = (p.position[1] - p.position[0]).norm() - 2.0 * RADIUS;
+        (gap, p.velocity[1].x - p.velocity[0].x)
+    };
+    let mut at_zero = None;
+    // The largest gap at which the grains still slowed each other down.
+    let mut deepest_pull = 0.0;
+    let (mut previous_gap, mut previous_speed) = state(&world);
+    for _ in 0..20_000 {
+        world.step();
+        let (gap, speed) = state(&world);
+        if gap > 0.0 && at_zero.is_none() {
+            at_zero = Some(speed);
+        }
+        if previous_gap > 0.0 && speed < previous_speed {
+            deepest_pull = f64::max(deepest_pull, previous_gap);
+        }
+        (previous_gap, previous_speed) = (gap, speed);
+        if gap > -3.0 * separation {
+            break;
+        }
+    }
+    let at_zero = at_zero.expect("the grains separated");
+    let (_, last) = state(&world);
+    println!(
+        "relative speed at zero overlap {at_zero:.6e} m/s, after separation {last:.6e} m/s; \
+         still in contact at a gap of {deepest_pull:.3e} m (separation at {:.3e} m)",
+        -separation
+    );
+    assert!(last < at_zero * (1.0 - 1e-5), "no pull past zero overlap");
+    // Pulling up to the separation gap (within one step's travel, ~27 nm), not beyond.
+    assert!(deepest_pull > 0.5 * -separation, "{deepest_pull}");
+    assert!(deepest_pull < -separation, "{deepest_pull}");
+}
