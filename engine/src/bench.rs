@@ -10,7 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::kinematics::Motion;
-use crate::material::{Interaction, MaterialSet};
+use crate::material::{Cohesion, Interaction, MaterialSet};
 use crate::math::{Pose, Vec3};
 use crate::mesh::TriMesh;
 use crate::neighbor::Domain;
@@ -58,6 +58,7 @@ fn measured_interaction() -> Interaction {
         restitution: 0.3,
         static_friction: 0.5,
         rolling_friction: 0.1,
+        cohesion: Cohesion::None,
     }
 }
 
@@ -117,6 +118,7 @@ pub fn settled_bed(particles: usize, seed: u64) -> Result<World, WorldError> {
         restitution: 0.05,
         static_friction: 0.1,
         rolling_friction: 0.0,
+        cohesion: Cohesion::None,
     };
     let (mut world, side, layers, spacing) = bed_world(particles, settling, seed)?;
     let soil = world.materials().id("soil").expect("soil");

@@ -7,7 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::material::PairConstants;
+use crate::material::{Cohesion, PairConstants};
 use crate::math::Vec3;
 
 /// 2 sqrt(5/6), the factor of EDEM's Hertz-Mindlin damping terms.
@@ -49,7 +49,9 @@ impl RollingModel {
 pub struct ContactForce {
     /// Total force on particle i (normal + tangential), N.
     pub force: Vec3,
-    /// Magnitude of the normal force (elastic + damping, clamped at >= 0), N.
+    /// Magnitude of the Hertz normal force (elastic + damping, clamped at >= 0), N: without
+    /// cohesion the whole normal force; with it, the repulsive part that the Coulomb cap and the
+    /// rolling torque use (see [`CohesionLaw`]). `force` does not include cohesion.
     pub normal_force: f64,
     /// Hertz normal tangent stiffness Sn = dFn/dδ = 2 E* sqrt(R* δ), N/m.
     pub normal_stiffness: f64,
@@ -96,7 +98,7 @@ pub fn hertz_mindlin(
     *spring += vt * dt;
     let mut ft = -*spring * st - vt * tangential_dashpot;
 
-    // Coulomb cap. We use the TOTAL normal force (elastic + damping, clamped at 0), not the
+    // Coulomb cap (with cohesion too: see `CohesionLaw`). We use the TOTAL normal force (elastic + damping, clamped at 0), not the
     // elastic part alone: friction is bounded by the load the contact actually transmits. With
     // the elastic part only, a contact that is unloading quickly (damping pulling the total
     // towards 0) could carry more friction than normal load, i.e. friction without pressure.
@@ -119,6 +121,159 @@ pub fn hertz_mindlin(
         normal_force,
         normal_stiffness: sn,
     }
+}
+
+/// A pair's cohesion law as the contact loop uses it, built once from the user's
+/// [`Cohesion`] and the pair's E* ([`CohesionLaw::new`]; a zero coefficient is `None`).
+///
+/// Cohesion is an attractive normal force added to Hertz-Mindlin's. **Which normal force the
+/// Coulomb cap and the rolling torque use with cohesion on: the repulsive Hertz part alone**
+/// (elastic + damping, clamped at 0: [`ContactForce::normal_force`], the same number as
+/// without cohesion), never the net force. Reasons: (1) Coulomb's law bounds friction by the
+/// compressive load pressing the surfaces together over the contact area, and cohesion raises
+/// that load (the overlap grows until Hertz balances the attraction plus the external load);
+/// the net force would make a cohesive contact at rest under no external load frictionless
+/// (net 0), so cohesion would weaken a soil's shear resistance instead of adding to it, and a
+/// net tension would give a negative cap (LIGGGHTS takes its absolute value, which lets a
+/// contact pulled apart hold more friction the harder it is pulled); (2) with cohesion `none`
+/// the contact law is then unchanged bit for bit. The damping stays in the clamped part, so
+/// the dashpot itself never pulls and the restitution calibration is unchanged.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CohesionLaw {
+    None,
+    /// F = k π a², a the radius of the circle where the undeformed bodies intersect
+    /// (LIGGGHTS 3.8 `cohesion sjkr`: its `Acont`; ≈ 2 π R* δ for small overlaps).
+    Linear {
+        /// k, J/m³.
+        energy_density: f64,
+    },
+    /// JKR: with a0³ = 2 π γ R*² / E* (the contact radius at zero overlap), x = a / a0 and
+    /// δ R* / a0² = x² − √x, the elastic normal force is 2 π γ R* (4/3 x³ − 2 x^1.5): its
+    /// minimum, the pull-off force, is −1.5 π γ R* (at x^1.5 = 3/4, a negative overlap), and
+    /// particle pairs separate at δ = −0.4725 a0² / R* (x^1.5 = 1/4, necking). Hertz's damping
+    /// and tangential stiffness are kept (as EDEM's JKR does).
+    Jkr {
+        /// γ, J/m².
+        surface_energy: f64,
+        /// 2 π γ / E*, m: a0³ = this times R*².
+        length: f64,
+    },
+}
+
+/// δ R* / a0² at which a JKR pair separates (x^1.5 = 1/4: −0.75 · 4^(−1/3)).
+pub const JKR_SEPARATION: f64 = -0.472_470_393_710_577_4;
+
+impl CohesionLaw {
+    pub fn new(cohesion: &Cohesion, e_star: f64) -> CohesionLaw {
+        match *cohesion {
+            Cohesion::None => CohesionLaw::None,
+            Cohesion::Linear { energy_density } if energy_density > 0.0 => {
+                CohesionLaw::Linear { energy_density }
+            }
+            Cohesion::Jkr { surface_energy } if surface_energy > 0.0 => CohesionLaw::Jkr {
+                surface_energy,
+                length: 2.0 * std::f64::consts::PI * surface_energy / e_star,
+            },
+            Cohesion::Linear { .. } | Cohesion::Jkr { .. } => CohesionLaw::None,
+        }
+    }
+
+    /// Whether the pair has cohesion (the contact loop's one test per contact).
+    #[inline(always)]
+    pub fn is_on(&self) -> bool {
+        !matches!(self, CohesionLaw::None)
+    }
+
+    /// The attractive normal force (N, > 0 pulls the bodies together) to subtract from
+    /// Hertz-Mindlin's at overlap δ > 0. `contact_radius2` gives a², the squared radius of the
+    /// circle where the undeformed bodies intersect (called by the linear law only).
+    #[inline]
+    pub fn attraction(
+        &self,
+        r_star: f64,
+        overlap: f64,
+        contact_radius2: impl FnOnce() -> f64,
+    ) -> f64 {
+        match *self {
+            CohesionLaw::None => 0.0,
+            CohesionLaw::Linear { energy_density } => {
+                energy_density * std::f64::consts::PI * contact_radius2()
+            }
+            CohesionLaw::Jkr {
+                surface_energy,
+                length,
+            } => {
+                let a0 = (length * r_star * r_star).cbrt();
+                let d = overlap * r_star / (a0 * a0);
+                let s = jkr_root(d);
+                let s3 = s * s * s;
+                // F_Hertz(δ) − F_JKR(δ), both in units of 2 π γ R*.
+                2.0 * std::f64::consts::PI
+                    * surface_energy
+                    * r_star
+                    * (4.0 / 3.0 * (d * d.sqrt() - s3 * s3) + 2.0 * s3)
+            }
+        }
+    }
+
+    /// The JKR force (N, negative: attractive) of a contact at negative overlap δ <= 0 that is
+    /// still necking, or `None` once it has separated (or for a law that has no necking).
+    #[inline]
+    pub fn necking_force(&self, r_star: f64, overlap: f64) -> Option<f64> {
+        let CohesionLaw::Jkr {
+            surface_energy,
+            length,
+        } = *self
+        else {
+            return None;
+        };
+        let a0 = (length * r_star * r_star).cbrt();
+        let d = overlap * r_star / (a0 * a0);
+        if d < JKR_SEPARATION {
+            return None;
+        }
+        let s3 = jkr_root(d).powi(3);
+        Some(
+            2.0 * std::f64::consts::PI * surface_energy * r_star * (4.0 / 3.0 * s3 * s3 - 2.0 * s3),
+        )
+    }
+}
+
+/// s = √(a/a0) on JKR's stable branch for D = δ R*/a0²: the largest root of s⁴ − s = D
+/// (D >= [`JKR_SEPARATION`]). Newton from s = 1 + D^¼ (right of the root: s⁴ − s is convex
+/// and (1 + t)⁴ − (1 + t) >= t⁴), so it decreases monotonically onto the root.
+#[inline]
+fn jkr_root(d: f64) -> f64 {
+    let mut s = if d > 0.0 { 1.0 + d.sqrt().sqrt() } else { 1.0 };
+    for _ in 0..100 {
+        let g = s * s * s * s - s - d;
+        let slope = 4.0 * s * s * s - 1.0;
+        if g <= 0.0 || slope <= 0.0 {
+            break;
+        }
+        let step = g / slope;
+        s -= step;
+        if step <= 1e-15 * s {
+            break;
+        }
+    }
+    s
+}
+
+/// a² of the circle where two undeformed spheres (radii `ri`, `rj`, centre distance² `dist2`,
+/// overlap δ = ri + rj − dist) intersect: δ (2ri − δ)(2rj − δ)(2(ri + rj) − δ) / (4 dist²),
+/// LIGGGHTS' `Acont / π`.
+#[inline]
+pub fn sphere_sphere_contact_radius2(ri: f64, rj: f64, dist2: f64, overlap: f64) -> f64 {
+    overlap * (2.0 * ri - overlap) * (2.0 * rj - overlap) * (2.0 * (ri + rj) - overlap)
+        / (4.0 * dist2)
+}
+
+/// a² of the circle where a sphere of radius `r` cuts a plane at overlap δ: δ (2r − δ)
+/// (LIGGGHTS: r² − d², d the centre's distance to the wall).
+#[inline]
+pub fn sphere_wall_contact_radius2(r: f64, overlap: f64) -> f64 {
+    overlap * (2.0 * r - overlap)
 }
 
 /// Project a stored spring onto the tangent plane of `normal` and restore its length, so a

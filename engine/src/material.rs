@@ -7,6 +7,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::contact::CohesionLaw;
+
 /// Index of a material in a [`MaterialTable`] (the order of [`MaterialSet::materials`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct MaterialId(pub u16);
@@ -61,6 +63,55 @@ pub struct Interaction {
     /// Coefficient of rolling friction μr, >= 0 (dimensionless, EDEM convention: the rolling
     /// torque is μr times the normal force times a lever arm).
     pub rolling_friction: f64,
+    /// The cohesion law of the pair. Absent from a JSON document means none, so every
+    /// document written before cohesion existed reads as before. It is always written out
+    /// (`{"model": "none"}`), so a spec's `--set` and a batch's factor paths can reach it.
+    #[serde(default)]
+    pub cohesion: Cohesion,
+}
+
+impl Interaction {
+    /// Restitution and friction without cohesion.
+    pub fn new(restitution: f64, static_friction: f64, rolling_friction: f64) -> Interaction {
+        Interaction {
+            restitution,
+            static_friction,
+            rolling_friction,
+            cohesion: Cohesion::None,
+        }
+    }
+}
+
+/// A cohesion law between two materials: an attractive normal force added to Hertz-Mindlin's.
+///
+/// JSON: `{"model": "none"}`, `{"model": "linear", "energy_density": 3.0e5}` or
+/// `{"model": "jkr", "surface_energy": 0.1}`. See [`crate::contact::CohesionLaw`] for the
+/// forces, and for which normal force friction and rolling resistance use.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Cohesion {
+    /// No cohesion: the contact law is exactly Hertz-Mindlin.
+    #[default]
+    None,
+    /// EDEM's linear cohesion, LIGGGHTS' `cohesion sjkr`: F = k A, with k the cohesion energy
+    /// density (J/m³) and A the contact area (the circle where the two undeformed spheres, or
+    /// the sphere and the wall plane, intersect).
+    Linear {
+        /// k, J/m³, >= 0.
+        energy_density: f64,
+    },
+    /// Johnson-Kendall-Roberts: the elastic normal force of an adhesive Hertz contact, pull-off
+    /// force 1.5 π γ R* (EDEM's convention: γ is the work of adhesion of the pair).
+    Jkr {
+        /// γ, J/m², >= 0.
+        surface_energy: f64,
+    },
+}
+
+impl Cohesion {
+    pub fn is_none(&self) -> bool {
+        matches!(self, Cohesion::None)
+    }
 }
 
 /// An [`Interaction`] between two named materials. Order of `a` and `b` does not matter.
@@ -187,7 +238,22 @@ impl Interaction {
             self.rolling_friction,
             self.rolling_friction >= 0.0,
             ">= 0",
-        )
+        )?;
+        match self.cohesion {
+            Cohesion::None => Ok(()),
+            Cohesion::Linear { energy_density } => check(
+                || path("cohesion.energy_density"),
+                energy_density,
+                energy_density >= 0.0,
+                ">= 0",
+            ),
+            Cohesion::Jkr { surface_energy } => check(
+                || path("cohesion.surface_energy"),
+                surface_energy,
+                surface_energy >= 0.0,
+                ">= 0",
+            ),
+        }
     }
 }
 
@@ -213,11 +279,7 @@ impl MaterialSet {
                 InteractionEntry {
                     a: "steel".into(),
                     b: "steel".into(),
-                    coefficients: Interaction {
-                        restitution: 0.5,
-                        static_friction: 0.3,
-                        rolling_friction: 0.01,
-                    },
+                    coefficients: Interaction::new(0.5, 0.3, 0.01),
                 },
             ],
         }
@@ -281,9 +343,13 @@ impl MaterialSet {
                 pairs.push(constants);
             }
         }
+        let any_jkr = pairs
+            .iter()
+            .any(|p| matches!(p.cohesion, CohesionLaw::Jkr { .. }));
         Ok(MaterialTable {
             materials: self.materials.clone(),
             pairs,
+            any_jkr,
         })
     }
 }
@@ -302,6 +368,8 @@ pub struct PairConstants {
     pub restitution: f64,
     /// sqrt(St / Sn) = sqrt(4 G* / E*): tangential over normal dashpot coefficient.
     pub tangential_to_normal_damping: f64,
+    /// The pair's cohesion, in the form the contact loop uses (tested once per contact).
+    pub cohesion: CohesionLaw,
 }
 
 impl PairConstants {
@@ -319,6 +387,7 @@ impl PairConstants {
             rolling_friction: coefficients.rolling_friction,
             restitution: coefficients.restitution,
             tangential_to_normal_damping: (4.0 * g_star / e_star).sqrt(),
+            cohesion: CohesionLaw::new(&coefficients.cohesion, e_star),
         }
     }
 }
@@ -381,6 +450,8 @@ pub fn restitution_damping_ratio(restitution: f64) -> f64 {
 pub struct MaterialTable {
     materials: Vec<Material>,
     pairs: Vec<PairConstants>,
+    /// Some pair has JKR cohesion, whose contacts outlive zero overlap (necking).
+    any_jkr: bool,
 }
 
 impl MaterialTable {
@@ -406,6 +477,12 @@ impl MaterialTable {
             .iter()
             .position(|m| m.name == name)
             .map(|k| MaterialId(k as u16))
+    }
+
+    /// Whether some pair has JKR cohesion (contacts that may continue at negative overlap).
+    #[inline]
+    pub fn any_jkr(&self) -> bool {
+        self.any_jkr
     }
 
     /// Precomputed constants of the pair (a, b); symmetric.

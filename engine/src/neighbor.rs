@@ -18,7 +18,7 @@ use crate::particles::{Particles, NEW_PARTICLE};
 pub(crate) const CHUNK: usize = 512;
 
 /// Top bit of a [`PairList::partner`] entry: the pair was in contact at the last force
-/// evaluation (or, right after a build, carries a non-zero history). When it is clear, the
+/// evaluation (kept across builds; a non-zero carried history sets it too). When it is clear, the
 /// pair's histories are zero and its partner share is stale (not read), so a pair within the
 /// skin but not touching costs no writes.
 pub(crate) const IN_CONTACT: u32 = 1 << 31;
@@ -417,7 +417,7 @@ pub(crate) fn build_pair_list(
                     } else {
                         previous.find(old_i, old_j)
                     };
-                    let (t, r) = match found {
+                    let (t, r, touching) = match found {
                         Some((p, swapped)) => {
                             let sign = if swapped { -1.0 } else { 1.0 };
                             let r = if carry_rolling {
@@ -425,11 +425,14 @@ pub(crate) fn build_pair_list(
                             } else {
                                 Vec3::zeros()
                             };
-                            (previous.tangential[p] * sign, r)
+                            let touching = previous.partner[p] & IN_CONTACT != 0;
+                            (previous.tangential[p] * sign, r, touching)
                         }
-                        None => (Vec3::zeros(), Vec3::zeros()),
+                        None => (Vec3::zeros(), Vec3::zeros(), false),
                     };
-                    if t != Vec3::zeros() || r != Vec3::zeros() {
+                    // The flag is carried even with zero histories: a JKR contact in its
+                    // necking range (negative overlap) exists only because it was in contact.
+                    if touching || t != Vec3::zeros() || r != Vec3::zeros() {
                         out.partner[k] |= IN_CONTACT;
                     }
                     out.tangential.push(t);

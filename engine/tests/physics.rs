@@ -8,7 +8,7 @@ use repose_engine::contact::RollingModel;
 use repose_engine::integrate::Integrator;
 use repose_engine::kinematics::Motion;
 use repose_engine::material::{
-    hertz_contact_time, DampingLaw, Interaction, InteractionEntry, Material, MaterialId,
+    hertz_contact_time, Cohesion, DampingLaw, Interaction, InteractionEntry, Material, MaterialId,
     MaterialSet, MaterialTable,
 };
 use repose_engine::math::{Pose, Vec3};
@@ -33,6 +33,7 @@ fn table(
         restitution,
         static_friction: friction,
         rolling_friction: rolling,
+        cohesion: Cohesion::None,
     };
     let entry = |a: &str, b: &str| InteractionEntry {
         a: a.into(),
@@ -791,11 +792,13 @@ fn material_validation_names_the_field_and_paper_values_are_expressible() {
             restitution: 0.15,
             static_friction: 0.68,
             rolling_friction: 0.40,
+            cohesion: Cohesion::None,
         },
         Interaction {
             restitution: 0.6,
             static_friction: 0.3,
             rolling_friction: 0.1,
+            cohesion: Cohesion::None,
         },
     );
     let json = serde_json::to_string(&set).unwrap();
@@ -1007,7 +1010,7 @@ proptest::proptest! {
         let constants = PairConstants::new(
             &ball_material(),
             &wall_material(),
-            &Interaction { restitution, static_friction: friction, rolling_friction: 0.0 },
+            &Interaction::new(restitution, friction, 0.0),
         );
         let normal = Vec3::new(nx, ny, nz).normalize();
         let mut spring = Vec3::new(sx, sy, sz);

@@ -10,10 +10,11 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::aor::{run_aor, AorSpec, Control, RunStatus};
+use crate::aor::{run_aor, AorSpec, RunStatus};
 use crate::drill::{
     bed_key, build_bed, run_drill_on_bed, DrillError, DrillSpec, DrillStatus, SettledBed,
 };
+use crate::progress::Control;
 use crate::replay::{ReplayError, ReplaySpec};
 
 /// Settled drilling beds kept between runs under their [`bed_key`]: a worker keeps them on
@@ -37,8 +38,102 @@ impl BedStore for NoBedStore {
     fn put(&mut self, _bed: &SettledBed) {}
 }
 
-/// Kinds understood by [`run_experiment`].
+/// An experiment kind, parsed once from its name ([`Kind::parse`]) and dispatched by `match`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Kind {
+    /// Angle of repose (`aor`).
+    Aor,
+    /// The drilling (pore-forming) test (`drill`).
+    Drill,
+    /// The test aid that answers from a table of known results (`table_lookup`).
+    TableLookup,
+}
+
+impl Kind {
+    /// Every kind, in the order [`KINDS`] names them.
+    pub const ALL: [Kind; 3] = [Kind::Aor, Kind::Drill, Kind::TableLookup];
+
+    /// The kind called `name`.
+    pub fn parse(name: &str) -> Result<Kind, ExperimentError> {
+        Kind::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| ExperimentError::UnknownKind { kind: name.into() })
+    }
+
+    /// The name a job gives.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Aor => "aor",
+            Kind::Drill => "drill",
+            Kind::TableLookup => "table_lookup",
+        }
+    }
+
+    /// Presets the kind offers (the first is its default).
+    pub fn presets(self) -> &'static [&'static str] {
+        match self {
+            Kind::Aor => &crate::aor::PRESETS,
+            Kind::Drill => &crate::drill::PRESETS,
+            Kind::TableLookup => &[],
+        }
+    }
+}
+
+impl std::str::FromStr for Kind {
+    type Err = ExperimentError;
+    fn from_str(name: &str) -> Result<Kind, ExperimentError> {
+        Kind::parse(name)
+    }
+}
+
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Names of the kinds understood by [`run_experiment`] (`Kind::ALL`'s names).
 pub const KINDS: [&str; 3] = ["aor", "drill", "table_lookup"];
+
+/// A spec parsed and checked for its kind: the typed form every entry point works on (parsed
+/// once, like mini-redis's `Command`), then dispatched by `match`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ExperimentSpec {
+    Aor(AorSpec),
+    Drill(DrillSpec),
+    TableLookup(ReplaySpec),
+}
+
+impl ExperimentSpec {
+    /// Parses and validates `spec` as a complete spec of `kind`.
+    pub fn parse(kind: Kind, spec: &Value) -> Result<ExperimentSpec, ExperimentError> {
+        Ok(match kind {
+            Kind::Aor => ExperimentSpec::Aor(parse_aor(spec)?),
+            Kind::Drill => ExperimentSpec::Drill(parse_drill(spec)?),
+            Kind::TableLookup => ExperimentSpec::TableLookup(parse_replay(spec)?),
+        })
+    }
+
+    pub fn kind(&self) -> Kind {
+        match self {
+            ExperimentSpec::Aor(_) => Kind::Aor,
+            ExperimentSpec::Drill(_) => Kind::Drill,
+            ExperimentSpec::TableLookup(_) => Kind::TableLookup,
+        }
+    }
+
+    /// The JSON form a job carries.
+    pub fn to_value(&self) -> Value {
+        match self {
+            ExperimentSpec::Aor(s) => serde_json::to_value(s).expect("AorSpec serialises"),
+            ExperimentSpec::Drill(s) => serde_json::to_value(s).expect("DrillSpec serialises"),
+            ExperimentSpec::TableLookup(s) => {
+                serde_json::to_value(s).expect("ReplaySpec serialises")
+            }
+        }
+    }
+}
 
 /// Why a spec cannot be used or a run could not produce a result.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -70,6 +165,27 @@ pub enum ExperimentError {
     /// The progress callback cancelled the run.
     #[error("cancelled")]
     Cancelled,
+    /// The machine running the experiment could not run it, for a reason of its own (e.g. a
+    /// worker cannot start its simulation threads): not the spec's fault, so the run may
+    /// succeed elsewhere or later.
+    #[error("{message}")]
+    Local { message: String },
+}
+
+impl ExperimentError {
+    /// Whether running the same spec again anywhere gives the same failure (a bad spec, or a
+    /// run that gives no result): a job server should then not retry it. An unknown kind or
+    /// preset met when running is this machine's catalog lacking it (a worker of another
+    /// build may have it), so it is not permanent; at submission the server refuses both.
+    pub fn is_permanent(&self) -> bool {
+        match self {
+            ExperimentError::InvalidSpec { .. } | ExperimentError::NoResult { .. } => true,
+            ExperimentError::UnknownKind { .. }
+            | ExperimentError::UnknownPreset { .. }
+            | ExperimentError::Cancelled
+            | ExperimentError::Local { .. } => false,
+        }
+    }
 }
 
 /// What a finished experiment reports.
@@ -89,12 +205,7 @@ pub struct Outcome {
 
 /// Presets a kind offers (the first is its default).
 pub fn presets(kind: &str) -> Result<&'static [&'static str], ExperimentError> {
-    match kind {
-        "aor" => Ok(&crate::aor::PRESETS),
-        "drill" => Ok(&crate::drill::PRESETS),
-        "table_lookup" => Ok(&[]),
-        other => Err(unknown_kind(other)),
-    }
+    Ok(Kind::parse(kind)?.presets())
 }
 
 /// The complete spec for `kind`: `overrides` merged over `preset` (objects key by key, see
@@ -105,55 +216,40 @@ pub fn prepare_spec(
     preset: Option<&str>,
     overrides: &Value,
 ) -> Result<Value, ExperimentError> {
-    match kind {
-        "aor" => {
-            let base = AorSpec::preset(preset.unwrap_or("default")).map_err(|_| {
-                ExperimentError::UnknownPreset {
-                    kind: kind.into(),
-                    preset: preset.unwrap_or_default().into(),
-                    valid: crate::aor::PRESETS.join(", "),
-                }
-            })?;
-            let base = serde_json::to_value(base).expect("AorSpec serialises");
-            let merged = merge_json(base, overrides.clone());
-            let spec = parse_aor(&merged)?;
-            Ok(serde_json::to_value(spec).expect("AorSpec serialises"))
+    let kind = Kind::parse(kind)?;
+    let unknown_preset = |valid: String| ExperimentError::UnknownPreset {
+        kind: kind.name().into(),
+        preset: preset.unwrap_or_default().into(),
+        valid,
+    };
+    let base = match kind {
+        Kind::Aor => {
+            let base = AorSpec::preset(preset.unwrap_or("default"))
+                .map_err(|_| unknown_preset(kind.presets().join(", ")))?;
+            Some(serde_json::to_value(base).expect("AorSpec serialises"))
         }
-        "drill" => {
-            let base = DrillSpec::preset(preset.unwrap_or("default")).map_err(|_| {
-                ExperimentError::UnknownPreset {
-                    kind: kind.into(),
-                    preset: preset.unwrap_or_default().into(),
-                    valid: crate::drill::PRESETS.join(", "),
-                }
-            })?;
-            let base = serde_json::to_value(base).expect("DrillSpec serialises");
-            let spec = parse_drill(&merge_json(base, overrides.clone()))?;
-            Ok(serde_json::to_value(spec).expect("DrillSpec serialises"))
+        Kind::Drill => {
+            let base = DrillSpec::preset(preset.unwrap_or("default"))
+                .map_err(|_| unknown_preset(kind.presets().join(", ")))?;
+            Some(serde_json::to_value(base).expect("DrillSpec serialises"))
         }
-        "table_lookup" => {
-            if let Some(preset) = preset {
-                return Err(ExperimentError::UnknownPreset {
-                    kind: kind.into(),
-                    preset: preset.into(),
-                    valid: "(none)".into(),
-                });
+        Kind::TableLookup => {
+            if preset.is_some() {
+                return Err(unknown_preset("(none)".into()));
             }
-            let spec = parse_replay(overrides)?;
-            Ok(serde_json::to_value(spec).expect("ReplaySpec serialises"))
+            None
         }
-        other => Err(unknown_kind(other)),
-    }
+    };
+    let merged = match base {
+        Some(base) => merge_json(base, overrides.clone()),
+        None => overrides.clone(),
+    };
+    Ok(ExperimentSpec::parse(kind, &merged)?.to_value())
 }
 
 /// Checks a complete spec (e.g. after factor values were written into it).
 pub fn validate_spec(kind: &str, spec: &Value) -> Result<(), ExperimentError> {
-    match kind {
-        "aor" => parse_aor(spec).map(drop),
-        "drill" => parse_drill(spec).map(drop),
-        "table_lookup" => parse_replay(spec).map(drop),
-        other => Err(unknown_kind(other)),
-    }
+    ExperimentSpec::parse(Kind::parse(kind)?, spec).map(drop)
 }
 
 /// Runs one experiment with `seed` (overriding any seed in the spec). `progress` receives the
@@ -176,9 +272,8 @@ pub fn run_experiment_with_beds(
     progress: &mut dyn FnMut(f64) -> Control,
     beds: &mut dyn BedStore,
 ) -> Result<Outcome, ExperimentError> {
-    match kind {
-        "aor" => {
-            let mut spec = parse_aor(spec)?;
+    match ExperimentSpec::parse(Kind::parse(kind)?, spec)? {
+        ExperimentSpec::Aor(mut spec) => {
             spec.seed = seed;
             let run = run_aor(&spec, &mut |p| progress(p.fraction)).map_err(|e| {
                 ExperimentError::InvalidSpec {
@@ -241,8 +336,7 @@ pub fn run_experiment_with_beds(
                 hold_s: 0.0,
             })
         }
-        "drill" => {
-            let mut spec = parse_drill(spec)?;
+        ExperimentSpec::Drill(mut spec) => {
             spec.seed = seed;
             let drill_error = |e: DrillError| match e {
                 DrillError::Cancelled => ExperimentError::Cancelled,
@@ -296,8 +390,7 @@ pub fn run_experiment_with_beds(
                 hold_s: 0.0,
             })
         }
-        "table_lookup" => {
-            let spec = parse_replay(spec)?;
+        ExperimentSpec::TableLookup(spec) => {
             if progress(0.0) == Control::Cancel {
                 return Err(ExperimentError::Cancelled);
             }
@@ -316,12 +409,7 @@ pub fn run_experiment_with_beds(
                 hold_s: spec.hold_s,
             })
         }
-        other => Err(unknown_kind(other)),
     }
-}
-
-fn unknown_kind(kind: &str) -> ExperimentError {
-    ExperimentError::UnknownKind { kind: kind.into() }
 }
 
 fn parse_aor(spec: &Value) -> Result<AorSpec, ExperimentError> {
@@ -374,13 +462,15 @@ fn parse_replay(spec: &Value) -> Result<ReplaySpec, ExperimentError> {
 
 /// `over` merged into `base`: objects merge key by key, so a spec may give only what differs
 /// from its preset; anything else (numbers, arrays, a tagged enum such as a size distribution
-/// given whole with its `kind`) replaces the base value.
+/// given whole with its `kind`, or a cohesion law with its `model`) replaces the base value.
 pub fn merge_json(base: Value, over: Value) -> Value {
     match (base, over) {
         (Value::Object(mut b), Value::Object(o)) => {
             for (k, v) in o {
                 let merged = match b.remove(&k) {
-                    Some(old) if v.get("kind").is_none() => merge_json(old, v),
+                    Some(old) if v.get("kind").is_none() && v.get("model").is_none() => {
+                        merge_json(old, v)
+                    }
                     _ => v,
                 };
                 b.insert(k, merged);
@@ -449,6 +539,69 @@ mod tests {
         let mut bad = spec.clone();
         bad["soil_soil"]["rolling_friction"] = json!(-1.0);
         assert!(validate_spec("drill", &bad).is_err());
+    }
+
+    #[test]
+    fn kinds_parse_once_and_round_trip_their_names() {
+        for (kind, name) in Kind::ALL.into_iter().zip(KINDS) {
+            assert_eq!(kind.name(), name);
+            assert_eq!(Kind::parse(name).unwrap(), kind);
+            assert_eq!(name.parse::<Kind>().unwrap(), kind);
+            assert_eq!(presets(name).unwrap(), kind.presets());
+        }
+        assert!(matches!(
+            Kind::parse("Aor"),
+            Err(ExperimentError::UnknownKind { .. })
+        ));
+        let spec = prepare_spec("drill", Some("fast"), &json!({})).unwrap();
+        let parsed = ExperimentSpec::parse(Kind::Drill, &spec).unwrap();
+        assert_eq!(parsed.kind(), Kind::Drill);
+        assert_eq!(parsed.to_value(), spec);
+        assert!(ExperimentSpec::parse(Kind::Aor, &spec).is_err());
+    }
+
+    #[test]
+    fn a_cohesion_law_is_given_whole_and_replaces_the_presets_whole() {
+        let linear = json!({"model": "linear", "energy_density": 3.0e5});
+        let spec = prepare_spec(
+            "aor",
+            Some("fast"),
+            &json!({"soil_soil": {"cohesion": linear}}),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["cohesion"], linear);
+        assert_eq!(spec["soil_steel"]["cohesion"], json!({"model": "none"}));
+        // A different model over it replaces it (no leftover energy_density).
+        let jkr = json!({"model": "jkr", "surface_energy": 0.1});
+        let spec = prepare_spec(
+            "aor",
+            Some("fast"),
+            &merge_json(
+                json!({"soil_soil": {"cohesion": linear}}),
+                json!({"soil_soil": {"cohesion": jkr}}),
+            ),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["cohesion"], jkr);
+        let mut bad = spec.clone();
+        bad["soil_soil"]["cohesion"]["surface_energy"] = json!(-1.0);
+        match validate_spec("aor", &bad) {
+            Err(ExperimentError::InvalidSpec { path, .. }) => {
+                assert_eq!(path.as_deref(), Some("soil_soil.cohesion.surface_energy"))
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_local_failure_is_not_permanent_and_a_bad_spec_is() {
+        let local = ExperimentError::Local {
+            message: "cannot start 4 simulation threads".into(),
+        };
+        assert!(!local.is_permanent());
+        assert!(!ExperimentError::Cancelled.is_permanent());
+        let bad = prepare_spec("aor", None, &json!({"total_mass": -1.0})).unwrap_err();
+        assert!(bad.is_permanent(), "{bad:?}");
     }
 
     #[test]

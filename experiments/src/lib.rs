@@ -7,7 +7,9 @@
 pub mod aor;
 pub mod catalog;
 pub mod drill;
+pub mod progress;
 pub mod replay;
+pub mod shear;
 mod spec_path;
 
 pub use spec_path::SpecError;

@@ -32,8 +32,8 @@ use std::time::{Duration, Instant};
 
 use rand::Rng;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
-use repose_experiments::aor::Control;
 use repose_experiments::catalog::{run_experiment_with_beds, ExperimentError, Outcome};
+use repose_experiments::progress::Control;
 use tokio::sync::watch;
 use uuid::Uuid;
 
@@ -443,10 +443,9 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
             .map_or(JobEnd::Abandoned, |()| JobEnd::Completed)
         }
         Ok(Err(error)) => {
-            let permanent = matches!(
-                error,
-                ExperimentError::NoResult { .. } | ExperimentError::InvalidSpec { .. }
-            );
+            // A bad spec or a run without a result fails the job; a failure of this worker's
+            // own (it cannot start its threads) or a cancel hands the job back.
+            let permanent = error.is_permanent();
             report_failure(context, &job, error.to_string(), permanent).await
         }
         Err(join_error) => {
@@ -587,8 +586,7 @@ fn simulate(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
-        .map_err(|e| ExperimentError::InvalidSpec {
-            path: None,
+        .map_err(|e| ExperimentError::Local {
             message: format!("cannot start {threads} simulation threads: {e}"),
         })?;
     let mut beds: Box<dyn repose_experiments::catalog::BedStore + Send> = match bed_cache {

@@ -3,7 +3,10 @@
 
 use super::walls::WallCandidates;
 use super::*;
-use crate::contact::{epsd_rolling_stiffness, epsd_rolling_torque, hertz_mindlin};
+use crate::contact::{
+    epsd_rolling_stiffness, epsd_rolling_torque, hertz_mindlin, sphere_sphere_contact_radius2,
+    sphere_wall_contact_radius2,
+};
 
 /// Step-constant inputs of the contact law.
 pub(super) struct ContactContext<'a> {
@@ -13,6 +16,8 @@ pub(super) struct ContactContext<'a> {
     pub(super) domain: Domain,
     pub(super) rolling_model: RollingModel,
     pub(super) materials: &'a MaterialTable,
+    /// Some pair has JKR cohesion (`MaterialTable::any_jkr`): contacts may neck.
+    pub(super) any_jkr: bool,
     pub(super) geometries: &'a [Geometry],
     pub(super) placed: &'a [PlacedGeometry],
     pub(super) walls: &'a WallCandidates,
@@ -106,6 +111,29 @@ pub(super) fn particle_contacts(
         let dist2 = d.norm_squared();
         let rsum = ri + rj;
         if dist2 >= rsum * rsum {
+            // A JKR contact outlives zero overlap (necking) until its separation distance,
+            // while the pair stays in the list (gap < skin at the last build; JKR's
+            // separation gap is microns for soils, the skin a sizeable part of a diameter).
+            // Only an attractive normal force acts there: no Hertz load, so no friction.
+            if *entry & IN_CONTACT != 0 && ctx.any_jkr {
+                let constants = materials.pair(mat_i, material[j]);
+                let r_star = ri * rj / rsum;
+                let dist = dist2.sqrt();
+                if let Some(pull) = constants.cohesion.necking_force(r_star, rsum - dist) {
+                    let force = d * (pull / dist);
+                    f += force;
+                    tangential[local] = Vec3::zeros();
+                    if use_rolling_spring {
+                        rolling[local] = Vec3::zeros();
+                    }
+                    share[local] = PartnerShare {
+                        force: -force,
+                        torque: Vec3::zeros(),
+                        rolling_moment: 0.0,
+                    };
+                    continue;
+                }
+            }
             // Not touching: histories are reset (only if set), the share is left stale.
             if *entry & IN_CONTACT != 0 {
                 *entry &= !IN_CONTACT;
@@ -130,7 +158,7 @@ pub(super) fn particle_contacts(
         let r_star = ri * rj / rsum;
         let m_star = mi * mj / (mi + mj);
         let constants = materials.pair(mat_i, material[j]);
-        let contact = hertz_mindlin(
+        let mut contact = hertz_mindlin(
             constants,
             r_star,
             m_star,
@@ -140,6 +168,13 @@ pub(super) fn particle_contacts(
             dt,
             &mut tangential[local],
         );
+        if constants.cohesion.is_on() {
+            // Attraction along the normal; friction and rolling keep the Hertz load.
+            let pull = constants.cohesion.attraction(r_star, overlap, || {
+                sphere_sphere_contact_radius2(ri, rj, dist2, overlap)
+            });
+            contact.force -= normal * pull;
+        }
         let n_cross_f = normal.cross(&contact.force);
         f += contact.force;
         tq -= n_cross_f * lever_i;
@@ -245,7 +280,7 @@ pub(super) fn particle_contacts(
                     .cross(&(point - placement.reference_point));
             let relative_velocity = vi + wi.cross(&arm) - wall_velocity;
             let constants = materials.pair(mat_i, geometry.material);
-            let contact = hertz_mindlin(
+            let mut contact = hertz_mindlin(
                 constants,
                 ri,
                 mi,
@@ -255,6 +290,14 @@ pub(super) fn particle_contacts(
                 dt,
                 &mut history.tangential,
             );
+            if constants.cohesion.is_on() {
+                // A wall contact ends at zero overlap (the mesh query finds overlapping
+                // triangles only): no JKR necking against geometry.
+                let pull = constants.cohesion.attraction(ri, mc.overlap, || {
+                    sphere_wall_contact_radius2(ri, mc.overlap)
+                });
+                contact.force -= normal * pull;
+            }
             f += contact.force;
             tq += arm.cross(&contact.force);
             match rolling_model {

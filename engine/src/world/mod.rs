@@ -521,7 +521,7 @@ mod tests {
 
     use super::*;
     use crate::kinematics::Motion;
-    use crate::material::{Interaction, MaterialSet};
+    use crate::material::{Cohesion, Interaction, MaterialSet};
 
     /// `f` on a rayon pool of `threads` threads.
     fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
@@ -538,6 +538,7 @@ mod tests {
             restitution: 0.4,
             static_friction: 0.5,
             rolling_friction: 0.1,
+            cohesion: Cohesion::None,
         };
         let materials = MaterialSet::paper(interaction, interaction)
             .build()
@@ -610,6 +611,7 @@ mod tests {
                 restitution: 0.5,
                 static_friction: 0.5,
                 rolling_friction: 0.1,
+                cohesion: Cohesion::None,
             };
             let materials = MaterialSet::paper(interaction, interaction)
                 .build()

@@ -16,6 +16,7 @@ impl World {
             domain: self.config.domain,
             rolling_model: self.config.rolling_model,
             materials: &self.materials,
+            any_jkr: self.materials.any_jkr(),
             geometries: &self.geometries,
             placed,
             walls: &self.walls,

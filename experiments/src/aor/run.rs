@@ -24,6 +24,9 @@ use super::measure::{measure_angle_of_repose, AngleOfRepose, MeasureError, Measu
 use super::picture::{side_view_svg, PictureOptions};
 use super::rest::{not_at_rest, NotAtRest};
 use super::spec::{AorSpec, Protocol, SpecError};
+// The progress callback's types (phases here: `filling`, `lifting`, `settling`, `measuring`;
+// filling is the first half of the fraction, settling the second).
+pub use crate::progress::{Control, Progress};
 
 /// Why a run could not start (a finished run that found no heap is an [`AorResult`] with a
 /// non-`ok` status, not an error).
@@ -41,27 +44,6 @@ fn build_error(part: &'static str, e: impl std::fmt::Display) -> AorError {
         part,
         reason: e.to_string(),
     }
-}
-
-/// What the progress callback is told.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Progress<'a> {
-    /// 0..1, monotonic. Filling is the first half, settling the second (against the time cap,
-    /// so a run that settles early jumps to 1).
-    pub fraction: f64,
-    /// `filling`, `lifting`, `settling`, `measuring`.
-    pub phase: &'a str,
-    /// Simulated time, s.
-    pub time: f64,
-    /// Grains in the world.
-    pub particles: usize,
-}
-
-/// The callback's answer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Control {
-    Continue,
-    Cancel,
 }
 
 /// Why the simulation stopped.

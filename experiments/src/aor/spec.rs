@@ -63,7 +63,7 @@
 
 use repose_engine::contact::RollingModel;
 use repose_engine::distribution::{SieveRow, SizeDistribution, SizeDistributionSpec};
-use repose_engine::material::{DampingLaw, Interaction, Material, MaterialSet};
+use repose_engine::material::{Cohesion, DampingLaw, Interaction, Material, MaterialSet};
 use serde::{Deserialize, Serialize};
 
 use super::measure::MeasureSettings;
@@ -422,11 +422,13 @@ impl AorSpec {
                 restitution: 0.45,
                 static_friction: 0.442,
                 rolling_friction: 0.140,
+                cohesion: Cohesion::None,
             },
             soil_steel: Interaction {
                 restitution: 0.40,
                 static_friction: 0.305,
                 rolling_friction: 0.50,
+                cohesion: Cohesion::None,
             },
             rolling_model: RollingSpec::Cdt,
             epsd_viscous_damping: default_epsd_damping(),
@@ -689,6 +691,17 @@ pub(crate) fn check_contacts(
                     format!("must be finite and >= 0, got {v}"),
                 ));
             }
+        }
+        let cohesion = match pair.cohesion {
+            Cohesion::None => None,
+            Cohesion::Linear { energy_density } => Some(("energy_density", energy_density)),
+            Cohesion::Jkr { surface_energy } => Some(("surface_energy", surface_energy)),
+        };
+        if let Some((field, v)) = cohesion.filter(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err((
+                format!("{name}.cohesion.{field}"),
+                format!("must be finite and >= 0, got {v}"),
+            ));
         }
     }
     for (name, m) in [("soil", &materials.soil), ("steel", &materials.steel)] {

@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::measure::{height_field, surface_level};
 use super::run::{build_error, DrillError};
 use super::spec::DrillSpec;
-use crate::aor::Control;
+use crate::progress::Control;
 
 /// Version of the bed recipe; part of every key, so a change to how beds are built never
 /// reuses an old bed.

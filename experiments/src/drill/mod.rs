@@ -18,7 +18,7 @@ mod picture;
 mod run;
 mod spec;
 
-pub use crate::aor::Control;
+pub use crate::progress::Control;
 pub use bed::{bed_key, build_bed, BedProgress, SettledBed, SettledBy, BED_FORMAT};
 pub use measure::{
     height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,

@@ -23,7 +23,7 @@ use super::measure::{
 };
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
-use crate::aor::Control;
+pub use crate::progress::{Control, Progress};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
 /// did not settle is a [`DrillResult`] with a non-`ok` status, not an error).
@@ -50,18 +50,6 @@ pub(crate) fn build_error(part: &'static str, e: impl std::fmt::Display) -> Dril
         part,
         reason: e.to_string(),
     }
-}
-
-/// What the progress callback is told.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Progress<'a> {
-    /// 0..1, monotonic over the whole run (bed included when [`run_drill`] builds it).
-    pub fraction: f64,
-    /// `bed`, `feeding`, `withdrawing`, `lifting`, `settling`, `measuring`.
-    pub phase: &'a str,
-    /// Simulated time of the current phase's world, s.
-    pub time: f64,
-    pub particles: usize,
 }
 
 /// Overall outcome. Hole metrics are reported for `ok` and `not_settled` (see
