@@ -15,8 +15,8 @@ mod common;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::service::{Proc, Service};
-use serde_json::{json, Value};
+use common::service::{replay_batch, Proc, Service};
+use serde_json::Value;
 
 /// The namespaces, veth pairs and bridge of one test run; removed on drop.
 struct Net {
@@ -204,24 +204,6 @@ impl Drop for Net {
             let _ = ip(&["link", "del", &self.bridge()]);
         }
     }
-}
-
-/// A replay batch (`table_lookup`, the test aid): `points` runs, y = 10 + 2x, each holding its
-/// worker `hold_s`.
-fn replay_batch(points: usize, hold_s: f64) -> Value {
-    let rows: Vec<Value> = (0..points)
-        .map(|i| json!({"x": i as f64, "y": 10.0 + 2.0 * i as f64}))
-        .collect();
-    let design: Vec<Value> = (0..points).map(|i| json!([i as f64])).collect();
-    json!({
-        "name": "partitioned replay",
-        "experiment": {"kind": "table_lookup", "spec": {"values": {"x": 0.0}, "rows": rows, "hold_s": hold_s}},
-        "factors": [{"name": "x", "path": "values.x", "low": 0.0, "high": (points - 1) as f64}],
-        "design": {"type": "explicit", "points": design},
-        "response": "y",
-        "model": "linear",
-        "seed": 3
-    })
 }
 
 /// The batch's jobs (`GET /v1/jobs?batch=`).

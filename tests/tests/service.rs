@@ -7,7 +7,7 @@ mod common;
 use std::time::Duration;
 
 use common::repose;
-use common::service::Service;
+use common::service::{replay_batch, Service};
 use serde_json::{json, Value};
 
 /// A four-run angle-of-repose batch small enough for CI (≈ 1 150 grains a run, a few seconds
@@ -24,23 +24,6 @@ fn small_aor_batch() -> Value {
         "response": "angle_deg",
         "model": "linear",
         "seed": 5
-    })
-}
-
-/// A replay batch (`table_lookup`, the test aid) whose runs each hold their worker `hold_s`.
-fn replay_batch(points: usize, hold_s: f64) -> Value {
-    let rows: Vec<Value> = (0..points)
-        .map(|i| json!({"x": i as f64, "y": 10.0 + 2.0 * i as f64}))
-        .collect();
-    let design: Vec<Value> = (0..points).map(|i| json!([i as f64])).collect();
-    json!({
-        "name": "replay",
-        "experiment": {"kind": "table_lookup", "spec": {"values": {"x": 0.0}, "rows": rows, "hold_s": hold_s}},
-        "factors": [{"name": "x", "path": "values.x", "low": 0.0, "high": (points - 1) as f64}],
-        "design": {"type": "explicit", "points": design},
-        "response": "y",
-        "model": if points >= 3 { "linear" } else { "none" },
-        "seed": 9
     })
 }
 

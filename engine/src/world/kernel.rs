@@ -115,7 +115,7 @@ pub(super) fn particle_contacts(
             // while the pair stays in the list (gap < skin at the last build; JKR's
             // separation gap is microns for soils, the skin a sizeable part of a diameter).
             // Only an attractive normal force acts there: no Hertz load, so no friction.
-            if *entry & IN_CONTACT != 0 && ctx.any_jkr {
+            if ctx.any_jkr && *entry & IN_CONTACT != 0 {
                 let constants = materials.pair(mat_i, material[j]);
                 let r_star = ri * rj / rsum;
                 let dist = dist2.sqrt();

@@ -532,17 +532,22 @@ mod tests {
             .install(f)
     }
 
-    /// A dense, frictional, falling cloud over a floor: 3000 particles (six chunks).
-    fn cloud(rolling_model: RollingModel, integrator: Integrator) -> World {
+    /// The paper's soil and steel, every pair with μs 0.5, μr 0.1 and the given restitution.
+    fn frictional_paper_table(restitution: f64) -> MaterialTable {
         let interaction = Interaction {
-            restitution: 0.4,
+            restitution,
             static_friction: 0.5,
             rolling_friction: 0.1,
             cohesion: Cohesion::None,
         };
-        let materials = MaterialSet::paper(interaction, interaction)
+        MaterialSet::paper(interaction, interaction)
             .build()
-            .unwrap();
+            .unwrap()
+    }
+
+    /// A dense, frictional, falling cloud over a floor: 3000 particles (six chunks).
+    fn cloud(rolling_model: RollingModel, integrator: Integrator) -> World {
+        let materials = frictional_paper_table(0.4);
         let soil = materials.id("soil").unwrap();
         let steel = materials.id("steel").unwrap();
         let r = 1e-3;
@@ -607,15 +612,7 @@ mod tests {
     fn a_collision_across_a_periodic_face_matches_one_in_open_space() {
         // `centre`: where the pair meets, `y0`: where it starts across the drift.
         let run = |centre: f64, y0: f64| {
-            let interaction = Interaction {
-                restitution: 0.5,
-                static_friction: 0.5,
-                rolling_friction: 0.1,
-                cohesion: Cohesion::None,
-            };
-            let materials = MaterialSet::paper(interaction, interaction)
-                .build()
-                .unwrap();
+            let materials = frictional_paper_table(0.5);
             let soil = materials.id("soil").unwrap();
             let (r, side) = (1e-3, 0.02);
             let domain = Domain {

@@ -290,3 +290,20 @@ impl Service {
         self.wait_for(batch, timeout, |s| s["state"] != "active")
     }
 }
+
+/// A replay batch (`table_lookup`, the test aid) whose runs each hold their worker `hold_s`.
+pub fn replay_batch(points: usize, hold_s: f64) -> Value {
+    let rows: Vec<Value> = (0..points)
+        .map(|i| serde_json::json!({"x": i as f64, "y": 10.0 + 2.0 * i as f64}))
+        .collect();
+    let design: Vec<Value> = (0..points).map(|i| serde_json::json!([i as f64])).collect();
+    serde_json::json!({
+        "name": "replay",
+        "experiment": {"kind": "table_lookup", "spec": {"values": {"x": 0.0}, "rows": rows, "hold_s": hold_s}},
+        "factors": [{"name": "x", "path": "values.x", "low": 0.0, "high": (points - 1) as f64}],
+        "design": {"type": "explicit", "points": design},
+        "response": "y",
+        "model": if points >= 3 { "linear" } else { "none" },
+        "seed": 9
+    })
+}
