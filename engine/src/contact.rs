@@ -11,7 +11,7 @@ use crate::material::{Cohesion, PairConstants};
 use crate::math::Vec3;
 
 /// 2 sqrt(5/6), the factor of EDEM's Hertz-Mindlin damping terms.
-const DAMPING_FACTOR: f64 = 1.825_741_858_350_553_8;
+pub(crate) const DAMPING_FACTOR: f64 = 1.825_741_858_350_553_8;
 
 /// How rolling resistance is modelled.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]

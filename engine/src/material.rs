@@ -346,10 +346,12 @@ impl MaterialSet {
         let any_jkr = pairs
             .iter()
             .any(|p| matches!(p.cohesion, CohesionLaw::Jkr { .. }));
+        let any_cohesion = pairs.iter().any(|p| p.cohesion.is_on());
         Ok(MaterialTable {
             materials: self.materials.clone(),
             pairs,
             any_jkr,
+            any_cohesion,
         })
     }
 }
@@ -452,6 +454,8 @@ pub struct MaterialTable {
     pairs: Vec<PairConstants>,
     /// Some pair has JKR cohesion, whose contacts outlive zero overlap (necking).
     any_jkr: bool,
+    /// Some pair has cohesion (linear or JKR).
+    any_cohesion: bool,
 }
 
 impl MaterialTable {
@@ -483,6 +487,11 @@ impl MaterialTable {
     #[inline]
     pub fn any_jkr(&self) -> bool {
         self.any_jkr
+    }
+
+    /// Whether some pair has cohesion (linear or JKR).
+    pub fn any_cohesion(&self) -> bool {
+        self.any_cohesion
     }
 
     /// Precomputed constants of the pair (a, b); symmetric.

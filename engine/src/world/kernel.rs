@@ -1,6 +1,7 @@
 //! The per-particle work shared by both dispatch paths: one particle's own pairs and geometry
 //! contacts, and its gather + integration.
 
+use super::lanes::PairPath;
 use super::walls::WallCandidates;
 use super::*;
 use crate::contact::{
@@ -18,6 +19,8 @@ pub(super) struct ContactContext<'a> {
     pub(super) materials: &'a MaterialTable,
     /// Some pair has JKR cohesion (`MaterialTable::any_jkr`): contacts may neck.
     pub(super) any_jkr: bool,
+    /// The code that computes a particle's own pairs.
+    pub(super) pair_path: PairPath,
     pub(super) geometries: &'a [Geometry],
     pub(super) placed: &'a [PlacedGeometry],
     pub(super) walls: &'a WallCandidates,
@@ -39,6 +42,8 @@ pub(super) struct ParticleReads<'a> {
 pub(super) struct Scratch {
     pub(super) mesh_contacts: Vec<MeshContact>,
     pub(super) new_walls: Vec<WallHistory>,
+    /// The lane path's per-chunk pair buffers.
+    pub(super) pairs: super::lanes::ChunkPairs,
 }
 
 /// Step-constant inputs of the gather + integrate step.
@@ -59,11 +64,245 @@ pub(super) struct ParticleState<'a> {
     pub(super) angular_velocity: &'a mut Vec3,
 }
 
-/// Particle i's own pairs (`partner`, with their histories and partner shares) and its
-/// geometry contacts. Returns i's force, torque and CDT rolling moment from these.
+/// The particle arrays of one chunk (particles `start..start + force.len()`): its pairs
+/// (indexed from the chunk's first pair), wall histories, and the force, torque and CDT
+/// rolling moment its particles receive from their own pairs and geometry contacts.
+pub(super) struct ChunkOut<'a> {
+    pub(super) start: usize,
+    pub(super) partner: &'a mut [u32],
+    pub(super) tangential: &'a mut [Vec3],
+    pub(super) rolling: &'a mut [Vec3],
+    pub(super) share: &'a mut [PartnerShare],
+    pub(super) walls: &'a mut [Vec<WallHistory>],
+    pub(super) force: &'a mut [Vec3],
+    pub(super) torque: &'a mut [Vec3],
+    pub(super) moment: &'a mut [f64],
+}
+
+/// A chunk's own pairs and geometry contacts: every particle i's force, torque and CDT
+/// moment, with its pairs' terms summed in pair order, then its geometry contacts. The lane
+/// path computes the whole chunk's touching pairs first, four at a time; the scalar path goes
+/// particle by particle. Either way the sums run in the same order (bit-identical).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub(super) fn particle_contacts(
+pub(super) fn chunk_contacts(
+    ctx: &ContactContext,
+    r: &ParticleReads,
+    first_pair: &[u32],
+    c: ChunkOut,
+    scratch: &mut Scratch,
+    loads: &mut [(Vec3, Vec3)],
+) {
+    let base = first_pair[c.start] as usize;
+    let own = |k: usize| {
+        let i = c.start + k;
+        first_pair[i] as usize - base..first_pair[i + 1] as usize - base
+    };
+    if ctx.pair_path == PairPath::Scalar {
+        for k in 0..c.force.len() {
+            let i = c.start + k;
+            let range = own(k);
+            let rolling: &mut [Vec3] = if c.rolling.is_empty() {
+                &mut []
+            } else {
+                &mut c.rolling[range.clone()]
+            };
+            let (f, tq, moment) = pairs_scalar(
+                ctx,
+                r,
+                i,
+                &mut c.partner[range.clone()],
+                &mut c.tangential[range.clone()],
+                rolling,
+                &mut c.share[range],
+            );
+            let (f, tq, moment) =
+                geometry_contacts(ctx, r, i, (f, tq, moment), &mut c.walls[k], scratch, loads);
+            c.force[k] = f;
+            c.torque[k] = tq;
+            c.moment[k] = moment;
+        }
+        return;
+    }
+    super::lanes::chunk_pairs(
+        ctx,
+        r,
+        c.start..c.start + c.force.len(),
+        first_pair,
+        c.partner,
+        c.tangential,
+        c.share,
+        &mut scratch.pairs,
+    );
+    let mut t = 0;
+    for k in 0..c.force.len() {
+        let i = c.start + k;
+        let mut f = ctx.gravity * r.mass[i];
+        let mut tq = Vec3::zeros();
+        let mut moment = 0.0;
+        let stop = scratch.pairs.end[k] as usize;
+        while t < stop {
+            let (force, torque, m) = scratch.pairs.result(t);
+            f += force;
+            tq -= torque;
+            moment += m;
+            t += 1;
+        }
+        let (f, tq, moment) =
+            geometry_contacts(ctx, r, i, (f, tq, moment), &mut c.walls[k], scratch, loads);
+        c.force[k] = f;
+        c.torque[k] = tq;
+        c.moment[k] = moment;
+    }
+}
+
+/// Particle i's geometry contacts, added to `sums` (its force, torque and CDT moment from
+/// its pairs). Returns the totals.
+#[inline(always)]
+fn geometry_contacts(
+    ctx: &ContactContext,
+    r: &ParticleReads,
+    i: usize,
+    sums: (Vec3, Vec3, f64),
+    walls: &mut Vec<WallHistory>,
+    scratch: &mut Scratch,
+    loads: &mut [(Vec3, Vec3)],
+) -> (Vec3, Vec3, f64) {
+    let (mut f, mut tq, mut moment) = sums;
+    let dt = ctx.dt;
+    let materials = ctx.materials;
+    let rolling_model = ctx.rolling_model;
+    let xi = r.position[i];
+    let vi = r.velocity[i];
+    let wi = r.angular_velocity[i];
+    let ri = r.radius[i];
+    let mi = r.mass[i];
+    let mat_i = r.material[i];
+
+    // Geometry contacts, geometry by geometry, in mesh order.
+    if ctx.geometries.is_empty() {
+        return (f, tq, moment);
+    }
+    let Scratch {
+        mesh_contacts,
+        new_walls,
+        ..
+    } = scratch;
+    new_walls.clear();
+    // Candidates are sorted by geometry: one cursor walks them alongside the geometries.
+    let (candidate_geometry, candidate_triangle) = ctx.walls.of(i);
+    let mut cursor = 0;
+    for (g, (geometry, placement)) in ctx.geometries.iter().zip(ctx.placed).enumerate() {
+        let first = cursor;
+        while cursor < candidate_geometry.len() && candidate_geometry[cursor] == g as u32 {
+            cursor += 1;
+        }
+        let candidates = &candidate_triangle[first..cursor];
+        let far = if placement.cached {
+            candidates.is_empty()
+        } else {
+            let reach = Vec3::repeat(ri);
+            let (lo, hi) = (xi - reach, xi + reach);
+            (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a])
+        };
+        if far {
+            continue;
+        }
+        mesh_contacts.clear();
+        let body_centre = placement.inverse.transform_point(&xi.into()).coords;
+        if placement.cached {
+            geometry
+                .mesh
+                .sphere_contacts_among(body_centre, ri, candidates, mesh_contacts);
+        } else {
+            geometry
+                .mesh
+                .sphere_contacts(body_centre, ri, mesh_contacts);
+        }
+        for mc in mesh_contacts.iter() {
+            let point = placement.pose.transform_point(&mc.point.into()).coords;
+            let normal = placement.pose.rotation * mc.normal;
+            // The previous contact with this geometry whose normal is closest.
+            let previous = walls
+                .iter()
+                .filter(|h| h.geometry == g as u32)
+                .map(|h| (h.normal.dot(&normal), h))
+                .filter(|(dot, _)| *dot > 0.9)
+                .max_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|(_, h)| *h);
+            let mut history = previous.unwrap_or(WallHistory {
+                geometry: g as u32,
+                normal,
+                tangential: Vec3::zeros(),
+                rolling: Vec3::zeros(),
+            });
+            history.normal = normal;
+            let arm = point - xi;
+            // `Motion::velocity_of_point` with the step's velocities.
+            let wall_velocity = placement.linear_velocity
+                + placement
+                    .angular_velocity
+                    .cross(&(point - placement.reference_point));
+            let relative_velocity = vi + wi.cross(&arm) - wall_velocity;
+            let constants = materials.pair(mat_i, geometry.material);
+            let mut contact = hertz_mindlin(
+                constants,
+                ri,
+                mi,
+                mc.overlap,
+                normal,
+                relative_velocity,
+                dt,
+                &mut history.tangential,
+            );
+            if constants.cohesion.is_on() {
+                // A wall contact ends at zero overlap (the mesh query finds overlapping
+                // triangles only): no JKR necking against geometry.
+                let pull = constants.cohesion.attraction(ri, mc.overlap, || {
+                    sphere_wall_contact_radius2(ri, mc.overlap)
+                });
+                contact.force -= normal * pull;
+            }
+            f += contact.force;
+            tq += arm.cross(&contact.force);
+            match rolling_model {
+                RollingModel::ConstantDirectionalTorque => {
+                    moment += constants.rolling_friction * contact.normal_force * arm.norm();
+                }
+                RollingModel::ElasticPlasticSpringDashpot { viscous_damping } => {
+                    let kr = epsd_rolling_stiffness(
+                        contact.normal_stiffness,
+                        constants.rolling_friction,
+                        ri,
+                    );
+                    let inertia_r = 1.0 / r.inverse_inertia[i] + mi * ri * ri;
+                    tq += epsd_rolling_torque(
+                        normal,
+                        wi - placement.angular_velocity,
+                        kr,
+                        constants.rolling_friction * ri * contact.normal_force,
+                        viscous_damping * 2.0 * (inertia_r * kr).sqrt(),
+                        dt,
+                        &mut history.rolling,
+                    );
+                }
+            }
+            let load = &mut loads[g];
+            load.0 -= contact.force;
+            load.1 += (point - placement.reference_point).cross(&-contact.force);
+            new_walls.push(history);
+        }
+    }
+    if !new_walls.is_empty() || !walls.is_empty() {
+        walls.clear();
+        walls.extend_from_slice(new_walls);
+    }
+    (f, tq, moment)
+}
+
+/// Particle i's own pairs, one at a time (every law): returns i's force (with gravity),
+/// torque and CDT rolling moment from them, writes each touching pair's share for j.
+#[inline(always)]
+fn pairs_scalar(
     ctx: &ContactContext,
     r: &ParticleReads,
     i: usize,
@@ -71,9 +310,6 @@ pub(super) fn particle_contacts(
     tangential: &mut [Vec3],
     rolling: &mut [Vec3],
     share: &mut [PartnerShare],
-    walls: &mut Vec<WallHistory>,
-    scratch: &mut Scratch,
-    loads: &mut [(Vec3, Vec3)],
 ) -> (Vec3, Vec3, f64) {
     let dt = ctx.dt;
     let domain = &ctx.domain;
@@ -215,123 +451,6 @@ pub(super) fn particle_contacts(
         };
     }
 
-    // Geometry contacts, geometry by geometry, in mesh order.
-    if ctx.geometries.is_empty() {
-        return (f, tq, moment);
-    }
-    let Scratch {
-        mesh_contacts,
-        new_walls,
-    } = scratch;
-    new_walls.clear();
-    // Candidates are sorted by geometry: one cursor walks them alongside the geometries.
-    let (candidate_geometry, candidate_triangle) = ctx.walls.of(i);
-    let mut cursor = 0;
-    for (g, (geometry, placement)) in ctx.geometries.iter().zip(ctx.placed).enumerate() {
-        let first = cursor;
-        while cursor < candidate_geometry.len() && candidate_geometry[cursor] == g as u32 {
-            cursor += 1;
-        }
-        let candidates = &candidate_triangle[first..cursor];
-        let far = if placement.cached {
-            candidates.is_empty()
-        } else {
-            let reach = Vec3::repeat(ri);
-            let (lo, hi) = (xi - reach, xi + reach);
-            (0..3).any(|a| lo[a] > placement.aabb_max[a] || hi[a] < placement.aabb_min[a])
-        };
-        if far {
-            continue;
-        }
-        mesh_contacts.clear();
-        let body_centre = placement.inverse.transform_point(&xi.into()).coords;
-        if placement.cached {
-            geometry
-                .mesh
-                .sphere_contacts_among(body_centre, ri, candidates, mesh_contacts);
-        } else {
-            geometry
-                .mesh
-                .sphere_contacts(body_centre, ri, mesh_contacts);
-        }
-        for mc in mesh_contacts.iter() {
-            let point = placement.pose.transform_point(&mc.point.into()).coords;
-            let normal = placement.pose.rotation * mc.normal;
-            // The previous contact with this geometry whose normal is closest.
-            let previous = walls
-                .iter()
-                .filter(|h| h.geometry == g as u32)
-                .map(|h| (h.normal.dot(&normal), h))
-                .filter(|(dot, _)| *dot > 0.9)
-                .max_by(|a, b| a.0.total_cmp(&b.0))
-                .map(|(_, h)| *h);
-            let mut history = previous.unwrap_or(WallHistory {
-                geometry: g as u32,
-                normal,
-                tangential: Vec3::zeros(),
-                rolling: Vec3::zeros(),
-            });
-            history.normal = normal;
-            let arm = point - xi;
-            // `Motion::velocity_of_point` with the step's velocities.
-            let wall_velocity = placement.linear_velocity
-                + placement
-                    .angular_velocity
-                    .cross(&(point - placement.reference_point));
-            let relative_velocity = vi + wi.cross(&arm) - wall_velocity;
-            let constants = materials.pair(mat_i, geometry.material);
-            let mut contact = hertz_mindlin(
-                constants,
-                ri,
-                mi,
-                mc.overlap,
-                normal,
-                relative_velocity,
-                dt,
-                &mut history.tangential,
-            );
-            if constants.cohesion.is_on() {
-                // A wall contact ends at zero overlap (the mesh query finds overlapping
-                // triangles only): no JKR necking against geometry.
-                let pull = constants.cohesion.attraction(ri, mc.overlap, || {
-                    sphere_wall_contact_radius2(ri, mc.overlap)
-                });
-                contact.force -= normal * pull;
-            }
-            f += contact.force;
-            tq += arm.cross(&contact.force);
-            match rolling_model {
-                RollingModel::ConstantDirectionalTorque => {
-                    moment += constants.rolling_friction * contact.normal_force * arm.norm();
-                }
-                RollingModel::ElasticPlasticSpringDashpot { viscous_damping } => {
-                    let kr = epsd_rolling_stiffness(
-                        contact.normal_stiffness,
-                        constants.rolling_friction,
-                        ri,
-                    );
-                    let inertia_r = 1.0 / r.inverse_inertia[i] + mi * ri * ri;
-                    tq += epsd_rolling_torque(
-                        normal,
-                        wi - placement.angular_velocity,
-                        kr,
-                        constants.rolling_friction * ri * contact.normal_force,
-                        viscous_damping * 2.0 * (inertia_r * kr).sqrt(),
-                        dt,
-                        &mut history.rolling,
-                    );
-                }
-            }
-            let load = &mut loads[g];
-            load.0 -= contact.force;
-            load.1 += (point - placement.reference_point).cross(&-contact.force);
-            new_walls.push(history);
-        }
-    }
-    if !new_walls.is_empty() || !walls.is_empty() {
-        walls.clear();
-        walls.extend_from_slice(new_walls);
-    }
     (f, tq, moment)
 }
 

@@ -8,7 +8,10 @@
 //! - [`passes`]: the two ways a force evaluation is dispatched: one fused sequential sweep, or
 //!   a parallel contact pass followed by a parallel gather pass;
 //! - [`kernel`]: the per-particle work both dispatch paths share: a particle's own pairs and
-//!   geometry contacts (`particle_contacts`) and its gather + integration (`gather_particle`).
+//!   geometry contacts (`particle_contacts`) and its gather + integration (`gather_particle`);
+//! - [`lanes`]: the same pair law four contacts at a time across a chunk (the cohesionless
+//!   CDT case), chosen per force evaluation by [`KernelChoice`], bit-identical to the scalar
+//!   loop.
 //!
 //! One step (symplectic Euler) is: [rebuild the pair list if needed] → contact pass → gather +
 //! integrate pass. Velocity Verlet adds a half-kick + drift pass before the force evaluation.
@@ -30,6 +33,7 @@
 //! - **No I/O.** The engine reads and writes no files; callers hand it meshes and bytes.
 
 mod kernel;
+mod lanes;
 mod passes;
 mod spawn;
 mod step;
@@ -248,6 +252,19 @@ pub struct World {
     forces_current: bool,
     skin: f64,
     rng: ChaCha8Rng,
+    kernel: KernelChoice,
+}
+
+/// Which code computes the particle-particle contacts. Both give bit-identical results
+/// (tested); the choice exists to test and measure that.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KernelChoice {
+    /// The lane kernel where the law allows it (no cohesion, CDT rolling), the scalar loop
+    /// otherwise.
+    #[default]
+    Auto,
+    /// Always the per-pair scalar loop.
+    Scalar,
 }
 
 impl World {
@@ -316,7 +333,13 @@ impl World {
             forces_current: false,
             skin: 0.0,
             rng,
+            kernel: KernelChoice::Auto,
         })
+    }
+
+    /// Choose the code that computes particle-particle contacts (results do not depend on it).
+    pub fn set_kernel(&mut self, kernel: KernelChoice) {
+        self.kernel = kernel;
     }
 
     pub fn config(&self) -> &WorldConfig {
@@ -711,58 +734,82 @@ mod tests {
 
     /// A pour: grains inserted by a factory (at the deferred insertion points, with the
     /// adaptive skin and the wall candidate lists) while the 3000-grain cloud flows onto the
-    /// floor. One thread (fused sweep) and two threads (parallel passes) must agree bit for
-    /// bit, insertions included.
-    #[test]
-    fn a_pour_is_bit_identical_for_one_and_two_threads() {
+    /// floor, 400 steps with the given contact code on `threads` threads: the state hash, the
+    /// grain count and the rebuild count.
+    fn pour(threads: usize, kernel: KernelChoice) -> (u64, usize, u64) {
         use crate::distribution::{SizeDistribution, SizeDistributionSpec};
         use crate::factory::{Factory, FactorySpec, Region};
-        let run = |threads: usize| {
-            on_threads(threads, || {
-                let mut world = cloud(
-                    RollingModel::ConstantDirectionalTorque,
-                    Integrator::SymplecticEuler,
-                );
-                let soil = world.materials().id("soil").unwrap();
-                let size = SizeDistribution::new(SizeDistributionSpec::Uniform {
-                    min_radius: 0.0009,
-                    max_radius: 0.0011,
-                })
-                .unwrap();
-                let density = world.materials().material(soil).density;
-                let factory = Factory::new(
-                    FactorySpec {
-                        region: Region::Box {
-                            min: Vec3::new(0.002, 0.002, 0.15),
-                            max: Vec3::new(0.028, 0.028, 0.19),
-                        },
-                        mass_rate: 2.0,
-                        total_mass: 0.01,
-                        start_time: 0.0,
-                        velocity: Vec3::new(0.0, 0.0, -1.5),
-                        size,
-                        max_attempts_per_particle: 50,
-                    },
-                    density,
-                )
-                .unwrap();
-                world
-                    .add_source(ParticleSource::Factory(factory), soil)
-                    .unwrap();
-                world.run(400);
-                (
-                    world.state_hash(),
-                    world.particles().len(),
-                    world.rebuild_count(),
-                )
+        on_threads(threads, || {
+            let mut world = cloud(
+                RollingModel::ConstantDirectionalTorque,
+                Integrator::SymplecticEuler,
+            );
+            world.set_kernel(kernel);
+            let soil = world.materials().id("soil").unwrap();
+            let size = SizeDistribution::new(SizeDistributionSpec::Uniform {
+                min_radius: 0.0009,
+                max_radius: 0.0011,
             })
-        };
-        let (one, n_one, rebuilds) = run(1);
-        let (two, n_two, _) = run(2);
+            .unwrap();
+            let density = world.materials().material(soil).density;
+            let factory = Factory::new(
+                FactorySpec {
+                    region: Region::Box {
+                        min: Vec3::new(0.002, 0.002, 0.15),
+                        max: Vec3::new(0.028, 0.028, 0.19),
+                    },
+                    mass_rate: 2.0,
+                    total_mass: 0.01,
+                    start_time: 0.0,
+                    velocity: Vec3::new(0.0, 0.0, -1.5),
+                    size,
+                    max_attempts_per_particle: 50,
+                },
+                density,
+            )
+            .unwrap();
+            world
+                .add_source(ParticleSource::Factory(factory), soil)
+                .unwrap();
+            world.run(400);
+            (
+                world.state_hash(),
+                world.particles().len(),
+                world.rebuild_count(),
+            )
+        })
+    }
+
+    /// One thread (fused sweep) and two threads (parallel passes) must agree bit for bit on
+    /// the pour, insertions included.
+    #[test]
+    fn a_pour_is_bit_identical_for_one_and_two_threads() {
+        let (one, n_one, rebuilds) = pour(1, KernelChoice::Auto);
+        let (two, n_two, _) = pour(2, KernelChoice::Auto);
         assert!(n_one > 3100, "the factory inserted {} grains", n_one - 3000);
         assert!(rebuilds > 5, "{rebuilds} rebuilds");
         assert_eq!(n_one, n_two);
         assert_eq!(one, two);
+    }
+
+    /// The lane kernel and the scalar loop give the same pour bit for bit (dense, sliding,
+    /// spinning contacts across periodic faces), on one thread and two.
+    #[test]
+    fn the_lane_kernel_is_bit_identical_to_the_scalar_loop() {
+        let table = frictional_paper_table(0.4);
+        let cdt = RollingModel::ConstantDirectionalTorque;
+        assert_eq!(
+            lanes::PairPath::for_world(KernelChoice::Auto, &table, cdt),
+            lanes::PairPath::Lanes
+        );
+        assert_eq!(
+            lanes::PairPath::for_world(KernelChoice::Auto, &table, RollingModel::epsd()),
+            lanes::PairPath::Scalar
+        );
+        let scalar = pour(1, KernelChoice::Scalar);
+        assert_eq!(pour(1, KernelChoice::Auto), scalar);
+        assert_eq!(pour(2, KernelChoice::Auto), scalar);
+        assert_eq!(pour(2, KernelChoice::Scalar), scalar);
     }
 
     /// The fused sequential sweep (one thread) and the parallel passes (two threads, more

@@ -2,6 +2,7 @@
 //! contact pass + parallel gather pass. Both call the same kernel functions.
 
 use super::kernel::*;
+use super::lanes::PairPath;
 use super::*;
 
 impl World {
@@ -17,6 +18,7 @@ impl World {
             rolling_model: self.config.rolling_model,
             materials: &self.materials,
             any_jkr: self.materials.any_jkr(),
+            pair_path: PairPath::for_world(self.kernel, &self.materials, self.config.rolling_model),
             geometries: &self.geometries,
             placed,
             walls: &self.walls,
@@ -58,36 +60,48 @@ impl World {
         let mut rebuild = false;
         let p = &mut particles;
         let pl = &mut pairs;
+        let mut force = vec![Vec3::zeros(); CHUNK.min(n)];
+        let mut torque = vec![Vec3::zeros(); CHUNK.min(n)];
+        let mut moment = vec![0.0; CHUNK.min(n)];
         for chunk_start in (0..n).step_by(CHUNK) {
             let mut loads = vec![(Vec3::zeros(), Vec3::zeros()); ctx.geometries.len()];
-            for i in chunk_start..(chunk_start + CHUNK).min(n) {
-                let own = pl.first_pair[i] as usize..pl.first_pair[i + 1] as usize;
-                let reads = ParticleReads {
-                    position: &p.position,
-                    velocity: &p.velocity,
-                    angular_velocity: &p.angular_velocity,
-                    radius: &p.radius,
-                    mass: &p.mass,
-                    inverse_inertia: &p.inverse_inertia,
-                    material: &p.material,
-                };
-                let rolling: &mut [Vec3] = if use_rolling_spring {
-                    &mut pl.rolling[own.clone()]
-                } else {
-                    &mut []
-                };
-                let (f, tq, moment) = particle_contacts(
-                    &ctx,
-                    &reads,
-                    i,
-                    &mut pl.partner[own.clone()],
-                    &mut pl.tangential[own.clone()],
+            let chunk_end = (chunk_start + CHUNK).min(n);
+            let size = chunk_end - chunk_start;
+            let own = pl.first_pair[chunk_start] as usize..pl.first_pair[chunk_end] as usize;
+            let reads = ParticleReads {
+                position: &p.position,
+                velocity: &p.velocity,
+                angular_velocity: &p.angular_velocity,
+                radius: &p.radius,
+                mass: &p.mass,
+                inverse_inertia: &p.inverse_inertia,
+                material: &p.material,
+            };
+            let rolling: &mut [Vec3] = if use_rolling_spring {
+                &mut pl.rolling[own.clone()]
+            } else {
+                &mut []
+            };
+            chunk_contacts(
+                &ctx,
+                &reads,
+                &pl.first_pair,
+                ChunkOut {
+                    start: chunk_start,
+                    partner: &mut pl.partner[own.clone()],
+                    tangential: &mut pl.tangential[own.clone()],
                     rolling,
-                    &mut pl.partner_share[own],
-                    &mut p.wall_history[i],
-                    &mut scratch,
-                    &mut loads,
-                );
+                    share: &mut pl.partner_share[own],
+                    walls: &mut p.wall_history[chunk_start..chunk_end],
+                    force: &mut force[..size],
+                    torque: &mut torque[..size],
+                    moment: &mut moment[..size],
+                },
+                &mut scratch,
+                &mut loads,
+            );
+            for i in chunk_start..chunk_end {
+                let k = i - chunk_start;
                 let incident = pl.incidence_start[i] as usize..pl.incidence_start[i + 1] as usize;
                 let state = ParticleState {
                     force: &mut p.force[i],
@@ -98,9 +112,9 @@ impl World {
                 };
                 rebuild |= gather_particle(
                     &gather,
-                    f,
-                    tq,
-                    moment,
+                    force[k],
+                    torque[k],
+                    moment[k],
                     &pl.incidence_pair[incident],
                     &pl.partner,
                     &pl.partner_share,
@@ -208,33 +222,25 @@ impl World {
             .into_par_iter()
             .map(|task| {
                 let mut loads = vec![(Vec3::zeros(), Vec3::zeros()); ctx.geometries.len()];
-                let pair_base = first_pair[task.start] as usize;
                 let mut scratch = Scratch::default();
-                for k in 0..task.force.len() {
-                    let i = task.start + k;
-                    let own =
-                        first_pair[i] as usize - pair_base..first_pair[i + 1] as usize - pair_base;
-                    let rolling: &mut [Vec3] = if use_rolling_spring {
-                        &mut task.rolling[own.clone()]
-                    } else {
-                        &mut []
-                    };
-                    let (f, tq, moment) = particle_contacts(
-                        &ctx,
-                        &reads,
-                        i,
-                        &mut task.partner[own.clone()],
-                        &mut task.tangential[own.clone()],
-                        rolling,
-                        &mut task.share[own],
-                        &mut task.walls[k],
-                        &mut scratch,
-                        &mut loads,
-                    );
-                    task.force[k] = f;
-                    task.torque[k] = tq;
-                    task.moment[k] = moment;
-                }
+                chunk_contacts(
+                    &ctx,
+                    &reads,
+                    first_pair,
+                    ChunkOut {
+                        start: task.start,
+                        partner: task.partner,
+                        tangential: task.tangential,
+                        rolling: task.rolling,
+                        share: task.share,
+                        walls: task.walls,
+                        force: task.force,
+                        torque: task.torque,
+                        moment: task.moment,
+                    },
+                    &mut scratch,
+                    &mut loads,
+                );
                 loads
             })
             .collect();
