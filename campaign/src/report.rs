@@ -9,7 +9,7 @@ use repose_doe::Fit;
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
-use crate::campaign::{fmt_num, fmt_p, screening_fit, surface_fit};
+use crate::campaign::{fit_or_reason, fmt_num, fmt_p, screening_fit, surface_fit};
 use crate::svg::{contour, esc, normal_quantile, pareto, path_chart, scatter};
 use crate::{relative_error_pct, Campaign, StageKind, StageResult, Status};
 
@@ -107,7 +107,7 @@ pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
             .find(|b| b.stage == StageKind::Screening)
             .and_then(|b| result_for(results, b.index))
         {
-            if let Ok(fit) = screening_fit(&c.request, r.batch, &r.runs) {
+            if let Some(fit) = fit_or_reason(screening_fit(&c.request, r.batch, &r.runs)) {
                 v["fit"] = fit_json(&fit);
             }
         }
@@ -123,7 +123,7 @@ pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
     for round in &c.surfaces {
         let mut v = serde_json::to_value(round).unwrap_or(Value::Null);
         if let Some(r) = surface_batch(c, round.round).and_then(|i| result_for(results, i)) {
-            if let Ok(fit) = surface_fit(&c.request, round, r.batch, &r.runs) {
+            if let Some(fit) = fit_or_reason(surface_fit(&c.request, round, r.batch, &r.runs)) {
                 v["fit_full"] = fit_json(&fit);
             }
         }
@@ -496,7 +496,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         o.push_str("<h2>1. Screening</h2>");
         if let Some(res) = result_for(results, b.index) {
             design_table(&mut o, &b.request, &res.runs, None);
-            if let Ok(Ok(fit)) = screening_fit(r, res.batch, &res.runs) {
+            if let Ok(fit) = screening_fit(r, res.batch, &res.runs) {
                 anova_table(&mut o, &fit, r.alpha);
             }
         }
@@ -604,9 +604,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         let fit = match (batch, res) {
             (Some(b), Some(res)) => {
                 design_table(&mut o, &b.request, &res.runs, None);
-                surface_fit(r, round, res.batch, &res.runs)
-                    .ok()
-                    .and_then(Result::ok)
+                surface_fit(r, round, res.batch, &res.runs).ok()
             }
             _ => None,
         };
