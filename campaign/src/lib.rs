@@ -68,13 +68,14 @@ mod svg;
 
 pub use campaign::{
     CalibratedValue, Campaign, CarryRule, Decision, DrillMetric, DrillingOutcome, HeldFactor,
-    IssuedBatch, LevelSetPoint, Next, OptimumChoice, PathPoint, PathState, ScreeningOutcome,
-    StageKind, StageResult, Status, Summary, SurfaceFitSummary, SurfaceRound, VerificationOutcome,
+    IssuedBatch, LevelSetPoint, Next, OptimumChoice, PathPoint, PathState, ResponseCheck,
+    ResponseEffects, ScreeningOutcome, StageKind, StageResult, Status, Summary, SurfaceFitSummary,
+    SurfaceRound, VerificationOutcome,
 };
 pub use error::CampaignError;
 pub use report::{report_html, report_json, ReportPictures};
 pub use request::{
     relative_error_pct, CampaignRequest, CandidateFactor, DrillingValidation, PathDirectionSetting,
-    PathStartSetting, ScreeningSettings, StageExperiments, SteepestSettings, SurfaceDesign,
-    SurfaceSettings, Tolerance, VerificationSettings,
+    PathStartSetting, ScreeningSettings, StageExperiments, StageTemplate, SteepestSettings,
+    SurfaceDesign, SurfaceSettings, Target, TargetSetting, Tolerance, VerificationSettings,
 };

@@ -95,6 +95,52 @@ fn fit_json(fit: &Result<Fit, String>) -> Value {
     }
 }
 
+/// The inputs' first line: the experiment, response, target and tolerance (one target), or the
+/// experiments and every target with its tolerance.
+fn inputs_line(r: &crate::CampaignRequest, targets: &[crate::Target]) -> String {
+    let experiment = |e: &repose_api::ExperimentTemplate| {
+        format!(
+            "<b>{}</b>{}",
+            esc(&e.kind),
+            e.preset
+                .as_ref()
+                .map_or(s(""), |p| format!(" (preset {})", esc(p)))
+        )
+    };
+    match (&r.experiment, targets) {
+        (Some(e), [t]) => format!(
+            "Experiment {} · response <b>{}</b> · target <b>{}</b> · tolerance {}",
+            experiment(e),
+            esc(&t.label),
+            fmt_num(t.value),
+            esc(&t.tolerance.describe())
+        ),
+        _ => {
+            let experiments: Vec<String> = r
+                .experiments
+                .iter()
+                .map(|(k, e)| format!("{} = {}", esc(k), experiment(e)))
+                .collect();
+            let each: Vec<String> = targets
+                .iter()
+                .map(|t| {
+                    format!(
+                        "<b>{}</b> = <b>{}</b> (tolerance {})",
+                        esc(&t.label),
+                        fmt_num(t.value),
+                        esc(&t.tolerance.describe())
+                    )
+                })
+                .collect();
+            format!(
+                "Experiments {} · targets {}",
+                experiments.join(", "),
+                each.join(", ")
+            )
+        }
+    }
+}
+
 /// The report as JSON: inputs, status, decisions, per-stage outcomes with the full fits,
 /// the summary and the provenance of every run.
 pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
@@ -107,7 +153,12 @@ pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
             .find(|b| b.stage == StageKind::Screening)
             .and_then(|b| result_for(results, b.index))
         {
-            if let Some(fit) = fit_or_reason(screening_fit(&c.request, r.batch, &r.runs)) {
+            if let Some(fit) = fit_or_reason(screening_fit(
+                &c.request,
+                &c.request.targets()[0],
+                r.batch,
+                &r.runs,
+            )) {
                 v["fit"] = fit_json(&fit);
             }
         }
@@ -123,7 +174,13 @@ pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
     for round in &c.surfaces {
         let mut v = serde_json::to_value(round).unwrap_or(Value::Null);
         if let Some(r) = surface_batch(c, round.round).and_then(|i| result_for(results, i)) {
-            if let Some(fit) = fit_or_reason(surface_fit(&c.request, round, r.batch, &r.runs)) {
+            if let Some(fit) = fit_or_reason(surface_fit(
+                &c.request,
+                &c.request.targets()[0],
+                round,
+                r.batch,
+                &r.runs,
+            )) {
                 v["fit_full"] = fit_json(&fit);
             }
         }
@@ -376,6 +433,8 @@ fn picture(out: &mut String, title: &str, svg_doc: &Option<String>) {
 /// The report as one self-contained HTML page.
 pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictures) -> String {
     let r = &c.request;
+    let targets = r.targets();
+    let t0 = &targets[0];
     let mut o = String::new();
     let _ = write!(
         o,
@@ -432,16 +491,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
 
     // Inputs.
     o.push_str("<h2>Inputs</h2>");
-    let _ = write!(
-        o,
-        "<p>Experiment <b>{}</b>{} · response <b>{}</b> · target <b>{}</b> · tolerance {} · α = {}</p>",
-        esc(&r.experiment.kind),
-        r.experiment.preset.as_ref().map_or(s(""), |p| format!(" (preset {})", esc(p))),
-        esc(&r.response),
-        fmt_num(r.target),
-        esc(&r.tolerance.describe()),
-        r.alpha
-    );
+    let _ = write!(o, "<p>{} · α = {}</p>", inputs_line(r, &targets), r.alpha);
     let rows: Vec<Vec<String>> = r
         .factors
         .iter()
@@ -496,7 +546,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         o.push_str("<h2>1. Screening</h2>");
         if let Some(res) = result_for(results, b.index) {
             design_table(&mut o, &b.request, &res.runs, None);
-            if let Ok(fit) = screening_fit(r, res.batch, &res.runs) {
+            if let Ok(fit) = screening_fit(r, t0, res.batch, &res.runs) {
                 anova_table(&mut o, &fit, r.alpha);
             }
         }
@@ -549,7 +599,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                 );
                 row.push(
                     pt.response
-                        .map_or(s(""), |y| fmt_num(relative_error_pct(y, r.target))),
+                        .map_or(s(""), |y| fmt_num(relative_error_pct(y, t0.value))),
                 );
                 row.push(pt.runs.to_string());
                 row
@@ -578,7 +628,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
             .collect();
         let pr: Vec<f64> = p.points.iter().map(|pt| pt.predicted).collect();
         o.push_str("<div class=\"figs\">");
-        o.push_str(&path_chart(&xs, &ys, &pr, r.target));
+        o.push_str(&path_chart(&xs, &ys, &pr, t0.value));
         o.push_str("</div>");
     }
 
@@ -604,7 +654,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         let fit = match (batch, res) {
             (Some(b), Some(res)) => {
                 design_table(&mut o, &b.request, &res.runs, None);
-                surface_fit(r, round, res.batch, &res.runs).ok()
+                surface_fit(r, t0, round, res.batch, &res.runs).ok()
             }
             _ => None,
         };
@@ -630,7 +680,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                         (fi.low, fi.high),
                         (fj.low, fj.high),
                         &z,
-                        r.target,
+                        t0.value,
                         &[(opt.natural[i], opt.natural[j], "optimum")],
                     ));
                 }
@@ -706,7 +756,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                 .find(|b| b.stage == StageKind::Verification && b.round == v.round)
                 .and_then(|b| result_for(results, b.index).map(|res| (b, res)))
             {
-                design_table(&mut o, &b.request, &res.runs, Some(r.target));
+                design_table(&mut o, &b.request, &res.runs, Some(t0.value));
             }
             let _ = write!(
                 o,
@@ -714,11 +764,11 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                 fmt_num(v.mean),
                 fmt_num(v.std),
                 v.responses.len(),
-                fmt_num(r.target),
+                fmt_num(t0.value),
                 fmt_num(v.relative_error_pct),
                 if v.within_tolerance { "ok" } else { "bad" },
                 if v.within_tolerance { "within tolerance" } else { "outside tolerance" },
-                esc(&r.tolerance.describe())
+                esc(&t0.tolerance.describe())
             );
         }
     }

@@ -98,6 +98,7 @@ impl Campaign {
         self.decide(StageKind::Drilling, wording::drilling_plan(&drilling));
         Ok(Next::Submit(self.issue(
             StageKind::Drilling,
+            String::new(),
             template,
             specs,
             DesignRequest::Explicit {

@@ -23,14 +23,14 @@ use serde::{Deserialize, Serialize};
 pub use drilling::{DrillMetric, DrillingOutcome};
 pub(crate) use model::{screening_fit, surface_fit, ModelRole};
 pub use optimum::{LevelSetPoint, OptimumChoice};
-pub use screening::{CarryRule, HeldFactor, ScreeningOutcome};
+pub use screening::{CarryRule, HeldFactor, ResponseEffects, ScreeningOutcome};
 pub use steepest::{PathPoint, PathState};
 pub use surface::{SurfaceFitSummary, SurfaceRound};
-pub use verification::VerificationOutcome;
+pub use verification::{ResponseCheck, VerificationOutcome};
 pub(crate) use wording::{fmt_num, fmt_p};
 
 use crate::error::CampaignError;
-use crate::request::CampaignRequest;
+use crate::request::{CampaignRequest, StageTemplate};
 use model::set_path;
 
 /// The stages of a campaign, in order.
@@ -94,6 +94,11 @@ pub struct IssuedBatch {
     /// Steepest stage: the path point (index into [`PathState::points`]) of each design row.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub path_points: Vec<usize>,
+    /// Several-targets form: the experiment (key of `experiments`) this batch runs. A stage
+    /// issues one batch per experiment the targets need, one after the other, with the same
+    /// design; it decides when the last one has finished.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub experiment: String,
 }
 
 /// A decision and why, in plain words.
@@ -166,6 +171,10 @@ pub struct Summary {
     pub batches: usize,
     /// Optional drilling validation.
     pub drilling: Option<DrillingOutcome>,
+    /// Several targets: every response's verification (the fields above are the first
+    /// target's, except `within_tolerance`, which is over all).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub targets: Vec<ResponseCheck>,
 }
 
 /// A campaign's whole state. Serialises to JSON so a server can store it and resume after a
@@ -196,6 +205,10 @@ pub struct Campaign {
     pub drilling: Option<DrillingOutcome>,
     /// Set when finished.
     pub summary: Option<Summary>,
+    /// Finished batches of the current stage whose other experiments' batches are still to
+    /// run (several-targets form with more than one experiment).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pending: Vec<StageResult>,
 }
 
 /// Why a campaign stops for a person to look: statistical dead ends, not misuse. The words are
@@ -222,6 +235,11 @@ pub(crate) enum Stop {
     NoOptimum,
     /// No verification run completed.
     NoVerificationRun,
+    /// Several targets: verification failed in the last round allowed; the responses outside.
+    TargetsStillOutside {
+        rounds: u32,
+        outside: Vec<ResponseCheck>,
+    },
     /// Verification failed in the last round allowed.
     StillOutside {
         rounds: u32,
@@ -279,8 +297,9 @@ impl Campaign {
             verifications: Vec::new(),
             drilling: None,
             summary: None,
+            pending: Vec::new(),
         };
-        let batch = campaign.start_screening();
+        let batch = campaign.start_screening()?;
         Ok((campaign, batch))
     }
 
@@ -313,11 +332,27 @@ impl Campaign {
                 expected,
             });
         }
-        let next = match self.batches[expected].stage {
-            StageKind::Screening => self.after_screening(finished),
-            StageKind::Steepest => self.after_path(finished),
-            StageKind::ResponseSurface => self.after_surface(finished),
-            StageKind::Verification => self.after_verification(finished),
+        let stage = self.batches[expected].stage;
+        let keys = self.request.experiment_keys();
+        let part = keys
+            .iter()
+            .position(|k| *k == self.batches[expected].experiment)
+            .unwrap_or(0);
+        if stage != StageKind::Drilling && part + 1 < keys.len() {
+            // The stage's next experiment runs the same design before anything is decided.
+            self.pending.push(finished.clone());
+            return match self.issue_part(&keys[part + 1]) {
+                Ok(batch) => Ok(Next::Submit(batch)),
+                Err(e) => Err(e),
+            };
+        }
+        let mut results = std::mem::take(&mut self.pending);
+        results.push(finished.clone());
+        let next = match stage {
+            StageKind::Screening => self.after_screening(&results),
+            StageKind::Steepest => self.after_path(&results),
+            StageKind::ResponseSurface => self.after_surface(&results),
+            StageKind::Verification => self.after_verification(&results),
             StageKind::Drilling => self.after_drilling(finished),
             StageKind::Optimum => unreachable!("the optimum stage issues no batch"),
         };
@@ -343,10 +378,65 @@ impl Campaign {
         });
     }
 
+    /// Issues a stage's batch for its first experiment (the only one in the one-target form);
+    /// [`Self::advance`] issues the others with the same design.
+    fn issue_stage(
+        &mut self,
+        stage: StageKind,
+        factors: Vec<FactorSpec>,
+        design: DesignRequest,
+        replicates: u32,
+        model: ModelName,
+        path_points: Vec<usize>,
+    ) -> Result<BatchRequest, CampaignError> {
+        let key = self.request.experiment_keys().remove(0);
+        let experiment = self.part_template(stage, &key)?;
+        Ok(self.issue(
+            stage,
+            key,
+            experiment,
+            factors,
+            design,
+            replicates,
+            model,
+            path_points,
+        ))
+    }
+
+    /// The last batch's design again, for experiment `key`.
+    fn issue_part(&mut self, key: &str) -> Result<BatchRequest, CampaignError> {
+        let last = self.batches.last().expect("a batch was issued").clone();
+        let experiment = self.part_template(last.stage, key)?;
+        Ok(self.issue(
+            last.stage,
+            key.to_owned(),
+            experiment,
+            last.request.factors,
+            last.request.design,
+            last.request.replicates,
+            last.request.model,
+            last.path_points,
+        ))
+    }
+
+    /// A stage's template for experiment `key`: the screening one as given, the later ones with
+    /// the held factors written in.
+    fn part_template(
+        &self,
+        stage: StageKind,
+        key: &str,
+    ) -> Result<ExperimentTemplate, CampaignError> {
+        match stage {
+            StageKind::Screening => Ok(self.request.template_for(StageTemplate::Screening, key)),
+            _ => self.held_template(stage, key),
+        }
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn issue(
         &mut self,
         stage: StageKind,
+        key: String,
         experiment: ExperimentTemplate,
         factors: Vec<FactorSpec>,
         design: DesignRequest,
@@ -356,11 +446,11 @@ impl Campaign {
     ) -> BatchRequest {
         let index = self.batches.len();
         let r = &self.request;
-        let name = match stage {
+        let mut name = match stage {
             StageKind::ResponseSurface | StageKind::Verification if self.round > 0 => {
                 format!("{}: {} (round {})", r.name, stage.label(), self.round + 1)
             }
-            StageKind::Steepest if index > 1 => {
+            StageKind::Steepest if path_points.first().is_some_and(|p| *p > 0) => {
                 format!(
                     "{}: {} (points {}+)",
                     r.name,
@@ -370,12 +460,22 @@ impl Campaign {
             }
             _ => format!("{}: {}", r.name, stage.label()),
         };
+        if stage != StageKind::Drilling && r.experiment_keys().len() > 1 {
+            name.push_str(&format!(" [{key}]"));
+        }
         let (response, target) = match (stage, &r.drilling) {
             (StageKind::Drilling, Some(d)) => {
                 let (k, v) = d.measured.iter().next().expect("validated non-empty");
                 (k.clone(), Some(*v))
             }
-            _ => (r.response.clone(), Some(r.target)),
+            _ => {
+                let t = r
+                    .targets()
+                    .into_iter()
+                    .find(|t| t.experiment == key)
+                    .expect("every experiment has a target");
+                (t.metric, Some(t.value))
+            }
         };
         let request = BatchRequest {
             name,
@@ -399,21 +499,45 @@ impl Campaign {
             round: self.round,
             request: request.clone(),
             path_points,
+            experiment: if stage == StageKind::Drilling {
+                String::new()
+            } else {
+                key
+            },
         });
         request
     }
 
+    /// Each target with the stage's batch of its experiment (`results` in
+    /// [`CampaignRequest::experiment_keys`] order).
+    fn results_by_target<'a>(
+        &self,
+        results: &'a [StageResult],
+    ) -> Vec<(crate::request::Target, &'a StageResult)> {
+        let keys = self.request.experiment_keys();
+        self.request
+            .targets()
+            .into_iter()
+            .map(|t| {
+                let i = keys.iter().position(|k| *k == t.experiment).expect("a key");
+                (t, &results[i])
+            })
+            .collect()
+    }
+
     /// Template of a post-screening stage with the held factors written at their paths.
-    fn held_template(&self, stage: StageKind) -> Result<ExperimentTemplate, CampaignError> {
+    fn held_template(
+        &self,
+        stage: StageKind,
+        key: &str,
+    ) -> Result<ExperimentTemplate, CampaignError> {
         let r = &self.request;
-        let base = match stage {
-            StageKind::Steepest => r.stage_experiments.steepest.as_ref(),
-            StageKind::ResponseSurface => r.stage_experiments.response_surface.as_ref(),
-            StageKind::Verification => r.stage_experiments.verification.as_ref(),
-            _ => None,
-        }
-        .unwrap_or(&r.experiment);
-        let mut template = base.clone();
+        let which = match stage {
+            StageKind::Steepest => StageTemplate::Steepest,
+            StageKind::ResponseSurface => StageTemplate::ResponseSurface,
+            _ => StageTemplate::Verification,
+        };
+        let mut template = r.template_for(which, key);
         if let Some(s) = &self.screening {
             for h in &s.held {
                 let path = &r
@@ -487,7 +611,7 @@ impl Campaign {
         let summary = Summary {
             name: self.request.name.clone(),
             parameters: self.final_parameters(),
-            target: self.request.target,
+            target: self.request.targets()[0].value,
             predicted: v.predicted,
             verified_mean: v.mean,
             verified_relative_error_pct: v.relative_error_pct,
@@ -495,6 +619,7 @@ impl Campaign {
             surface_rounds: self.round + 1,
             batches: self.batches.len(),
             drilling: self.drilling.clone(),
+            targets: v.checks.clone(),
         };
         self.decide(self.stage, wording::finished(&summary.parameters));
         self.status = Status::Finished;

@@ -12,7 +12,7 @@ use serde_json::Value;
 
 use super::{Halt, Stop, SurfaceRound};
 use crate::error::CampaignError;
-use crate::request::CampaignRequest;
+use crate::request::{CampaignRequest, Target};
 
 /// Which model a fit was for (the stop sentence names it).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -131,19 +131,20 @@ pub(crate) fn set_path(spec: &mut Value, path: &str, value: f64) -> Result<(), S
 }
 
 /// Fits the first-order screening model over all candidates.
-/// Fits the first-order screening model over all candidates.
+/// Fits the first-order screening model of one target over all candidates.
 pub(crate) fn screening_fit(
     request: &CampaignRequest,
+    target: &Target,
     batch: usize,
     runs: &[RunView],
 ) -> Result<Fit, Halt> {
     let names: Vec<String> = request.factors.iter().map(|f| f.name.clone()).collect();
     let factors = candidate_factors(request);
-    let (x, y, _) = observations(batch, runs, &names, &request.response)?;
+    let (x, y, _) = observations(batch, runs, &names, &target.metric)?;
     let coded_rows: Vec<Vec<f64>> = x.iter().map(|p| coded(&factors, p)).collect();
     let model = Model::linear(&names).map_err(|e| Stop::ModelUnavailable(e.to_string()))?;
     let options = FitOptions {
-        response_name: request.response.clone(),
+        response_name: target.label.clone(),
         confidence: 1.0 - request.alpha,
         backward_alpha: None,
     };
@@ -156,20 +157,21 @@ pub(crate) fn screening_fit(
     })
 }
 
-/// Fits the quadratic model of a response-surface round.
+/// Fits the quadratic model of one target in a response-surface round.
 pub(crate) fn surface_fit(
     request: &CampaignRequest,
+    target: &Target,
     round: &SurfaceRound,
     batch: usize,
     runs: &[RunView],
 ) -> Result<Fit, Halt> {
     let names: Vec<String> = round.factors.iter().map(|f| f.name.clone()).collect();
-    let (x, y, _) = observations(batch, runs, &names, &request.response)?;
+    let (x, y, _) = observations(batch, runs, &names, &target.metric)?;
     let coded_rows: Vec<Vec<f64>> = x.iter().map(|p| coded(&round.factors, p)).collect();
     let model = Model::new(&names, ModelKind::Quadratic)
         .map_err(|e| Stop::ModelUnavailable(e.to_string()))?;
     let options = FitOptions {
-        response_name: request.response.clone(),
+        response_name: target.label.clone(),
         confidence: 1.0 - request.alpha,
         backward_alpha: None,
     };
@@ -194,35 +196,56 @@ pub(crate) fn candidate_factors(request: &CampaignRequest) -> Vec<Factor> {
         .collect()
 }
 
-/// The desirability search for the target on a fitted surface, as `repose analyze` does it:
-/// desirability 1 at the target, falling to 0 at the observed range widened by 5 % (and to
-/// include the target).
-pub(crate) fn search_target(
-    fit: &Fit,
-    target: f64,
-    observed: &[f64],
-    factors: &[Factor],
-    region: Region,
-    starts: usize,
-) -> Result<OptimumResult, String> {
+/// A target's desirability goal, as `repose analyze` sets it: desirability 1 at the target,
+/// falling to 0 at the observed range widened by 5 % (and to include the target).
+pub(crate) fn target_goal(target: f64, observed: &[f64]) -> Goal {
     let (min, max) = observed
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &y| {
             (a.min(y), b.max(y))
         });
     let span = (max - min).max(f64::EPSILON);
-    let goal = Goal::Target {
+    Goal::Target {
         target,
         lower: min.min(target) - 0.05 * span,
         upper: max.max(target) + 0.05 * span,
-    };
+    }
+}
+
+/// The desirability search on fitted surfaces, one objective per target (`goals[i]` for
+/// `fits[i]`): the overall desirability is their geometric mean (Derringer–Suich).
+pub(crate) fn search_targets(
+    fits: &[&Fit],
+    goals: &[Goal],
+    factors: &[Factor],
+    region: Region,
+    starts: usize,
+) -> Result<OptimumResult, String> {
     let options = OptimumOptions {
         region,
         starts,
         factor_ranges: Some(factors.to_vec()),
         ..OptimumOptions::default()
     };
-    optimize(&[Objective::new(fit, goal)], &options).map_err(|e| e.to_string())
+    let objectives: Vec<Objective> = fits
+        .iter()
+        .zip(goals)
+        .map(|(fit, goal)| Objective::new(fit, goal.clone()))
+        .collect();
+    optimize(&objectives, &options).map_err(|e| e.to_string())
+}
+
+/// A goal's desirability of `y` (weights 1).
+pub(crate) fn desirability(goal: &Goal, y: f64) -> f64 {
+    goal.desirability(y, 1.0, 1.0)
+}
+
+/// Geometric mean of the desirabilities (0 if any is 0).
+pub(crate) fn overall(d: &[f64]) -> f64 {
+    if d.iter().any(|v| *v <= 0.0) || d.is_empty() {
+        return 0.0;
+    }
+    (d.iter().map(|v| v.ln()).sum::<f64>() / d.len() as f64).exp()
 }
 
 #[cfg(test)]

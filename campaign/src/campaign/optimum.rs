@@ -2,11 +2,11 @@
 //! quadratic, the whole level set, and the chosen setting ([`find`]).
 
 use repose_doe::design::Factor;
-use repose_doe::Fit;
+use repose_doe::{Fit, Goal};
 use serde::{Deserialize, Serialize};
 
-use super::model::{natural, search_target};
-use super::surface::{SurfaceFitSummary, SurfaceRound};
+use super::model::{natural, search_targets};
+use super::surface::{FittedResponse, SurfaceFitSummary, SurfaceRound};
 use super::{wording, Campaign, Halt, Next, StageKind, Stop};
 
 /// One solution on the level set, for the report.
@@ -55,6 +55,10 @@ pub struct OptimumChoice {
     pub solutions: Vec<LevelSetPoint>,
     /// The optimiser's one-sentence summary.
     pub note: String,
+    /// Several targets: each target's predicted value at the chosen setting (target order);
+    /// `predicted` is the first's and `desirability` the overall one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub predictions: Vec<f64>,
 }
 
 /// The search's result: the choice and the best desirability any start reached.
@@ -74,13 +78,12 @@ impl OptimumFound {
 /// Searches the round's quadratic for the target; `observed` are the round's responses (they
 /// set the desirability's range).
 pub(crate) fn find(
-    fit: &Fit,
-    target: f64,
-    observed: &[f64],
+    fits: &[&Fit],
+    goals: &[Goal],
     round: &SurfaceRound,
     starts: usize,
 ) -> Result<OptimumFound, Stop> {
-    let result = search_target(fit, target, observed, &round.factors, round.region, starts)
+    let result = search_targets(fits, goals, &round.factors, round.region, starts)
         .map_err(Stop::OptimumSearchFailed)?;
     let best = result.solutions.first().ok_or(Stop::NoOptimum)?;
     let factors: &[Factor] = &round.factors;
@@ -110,6 +113,11 @@ pub(crate) fn find(
         coded_max: result.coded_max.clone(),
         solutions: result.solutions.iter().map(to_point).collect(),
         note: result.note.clone(),
+        predictions: if fits.len() > 1 {
+            best.responses.iter().map(|r| r.value).collect()
+        } else {
+            Vec::new()
+        },
     };
     Ok(OptimumFound {
         choice,
@@ -122,21 +130,29 @@ impl Campaign {
     pub(super) fn choose_optimum(
         &mut self,
         round: &SurfaceRound,
-        fit: &Fit,
-        observed: &[f64],
-        summary: SurfaceFitSummary,
+        fitted: Vec<FittedResponse>,
     ) -> Result<Next, Halt> {
+        let fits: Vec<&Fit> = fitted.iter().map(|f| &f.fit).collect();
+        let goals: Vec<Goal> = fitted.iter().map(|f| f.goal.clone()).collect();
         let found = find(
-            fit,
-            self.request.target,
-            observed,
+            &fits,
+            &goals,
             round,
             self.request.response_surface.optimum_starts,
         )?;
         let names: Vec<String> = round.factors.iter().map(|f| f.name.clone()).collect();
-        let text = wording::optimum(&found, &names, self.request.target);
+        let text = if fitted.len() > 1 {
+            let targets: Vec<_> = fitted.iter().map(|f| f.target.clone()).collect();
+            wording::optimum_overall(&found, &names, &targets)
+        } else {
+            wording::optimum(&found, &names, fitted[0].target.value)
+        };
+        let summaries: Vec<SurfaceFitSummary> = fitted.into_iter().map(|f| f.summary).collect();
         let last = self.surfaces.last_mut().expect("round");
-        last.fit = Some(summary);
+        last.fit = summaries.first().cloned();
+        if summaries.len() > 1 {
+            last.fits = summaries;
+        }
         last.optimum = Some(found.choice.clone());
         self.decide(StageKind::Optimum, text);
         self.start_verification(round, found.choice)

@@ -6,13 +6,14 @@ use std::collections::BTreeMap;
 
 use repose_api::{DesignRequest, ModelName};
 use repose_doe::design::{Factor, PathClamp, PathDirection, SteepestPath};
+use repose_doe::Goal;
 use serde::{Deserialize, Serialize};
 
-use super::model::{candidate_factors, natural, observations};
+use super::model::{candidate_factors, desirability, natural, observations, overall};
 use super::screening::ScreeningOutcome;
 use super::{wording, Campaign, Halt, Next, StageKind, StageResult, Stop};
 use crate::error::CampaignError;
-use crate::request::{CampaignRequest, PathDirectionSetting, PathStartSetting, Tolerance};
+use crate::request::{CampaignRequest, PathDirectionSetting, PathStartSetting, Target, Tolerance};
 
 /// One point of the steepest path.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -27,6 +28,12 @@ pub struct PathPoint {
     pub response: Option<f64>,
     /// Completed runs behind `response`.
     pub runs: usize,
+    /// Several targets: each target's mean simulated response, once run (target order).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub responses: Vec<f64>,
+    /// Several targets: the overall desirability of `responses`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub desirability: Option<f64>,
 }
 
 /// Stage 2 state.
@@ -51,8 +58,13 @@ pub struct PathState {
     pub dispatched: usize,
     /// Index of the point chosen as the response-surface centre.
     pub centre: Option<usize>,
-    /// Whether the simulated responses bracketed (or hit) the target.
+    /// Whether the simulated responses bracketed (or hit) the target; with several targets,
+    /// whether the overall desirability peaked (or every response was within tolerance).
     pub crossed: bool,
+    /// Several targets: each target's desirability goal (its band from the screening runs),
+    /// which the path's overall desirability is measured with.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub goals: Vec<Goal>,
 }
 
 /// Which corner the path starts from, relative to the target.
@@ -77,6 +89,12 @@ pub(crate) enum DirectionReason {
         intercept: f64,
         above: bool,
     },
+    /// Several targets: up the gradient of the overall desirability of the screening models at
+    /// the centre of the screening region.
+    Desirability {
+        /// Predicted overall desirability at the centre.
+        centre: f64,
+    },
     /// From a corner, chosen by the corners' predictions.
     Corner {
         /// Prediction at the ascent's start corner (the low-response corner).
@@ -99,6 +117,8 @@ pub(crate) enum PathEnd {
     Hit,
     /// Neither; the path is exhausted.
     NeverCrossed,
+    /// Several targets: the overall desirability rose to this point and fell after it.
+    Peaked,
 }
 
 /// What the last path batch means.
@@ -110,11 +130,56 @@ pub(crate) enum PathVerdict {
     Centre { centre: usize, end: PathEnd },
 }
 
-/// Lays out the path from the screening outcome (the carried factors' coefficients).
+/// The direction of steepest ascent of the overall desirability `D = (Π dᵢ)^(1/n)` of the
+/// screening models `ŷᵢ = aᵢ + bᵢ·x` at the centre (x = 0): `∇ln D ∝ Σᵢ ∇dᵢ / dᵢ` with
+/// `∇dᵢ = sign(Tᵢ − aᵢ)·bᵢ / (distance from Tᵢ to the band's end on aᵢ's side)` for the
+/// two-sided linear target desirability (dᵢ floored at 0.01 so a response at the band's edge
+/// pulls hard but finitely). Returns the direction over `carried` and D at the centre.
+pub(crate) fn desirability_direction(
+    screening: &ScreeningOutcome,
+    carried: &[usize],
+    goals: &[Goal],
+) -> (Vec<f64>, f64) {
+    let mut g = vec![0.0; carried.len()];
+    let mut ds = Vec::new();
+    for (e, goal) in screening.responses.iter().zip(goals) {
+        let Goal::Target {
+            target,
+            lower,
+            upper,
+        } = *goal
+        else {
+            unreachable!("campaign goals are targets")
+        };
+        let a = e.intercept;
+        let d = desirability(goal, a);
+        ds.push(d);
+        let band = if a > target {
+            upper - target
+        } else {
+            target - lower
+        };
+        let sign = if a == target {
+            0.0
+        } else {
+            (target - a).signum()
+        };
+        let scale = sign / (band.max(f64::EPSILON) * d.max(0.01));
+        for (gj, &i) in g.iter_mut().zip(carried) {
+            *gj += scale * e.estimates[i];
+        }
+    }
+    (g, overall(&ds))
+}
+
+/// Lays out the path from the screening outcome: for one target along the carried factors'
+/// coefficients toward it, for several up the overall desirability
+/// ([`desirability_direction`]; ascent from the corner it leaves, or from the centre).
 pub(crate) fn lay_out(
     request: &CampaignRequest,
     screening: &ScreeningOutcome,
     all: &[Factor],
+    goals: Vec<Goal>,
 ) -> Result<(PathState, DirectionReason), Halt> {
     let carried: Vec<usize> = screening
         .carried
@@ -127,14 +192,21 @@ pub(crate) fn lay_out(
                 .expect("a candidate")
         })
         .collect();
-    let coefficients: Vec<f64> = carried.iter().map(|&i| screening.estimates[i]).collect();
+    let multi = !screening.responses.is_empty();
+    let (coefficients, centre_d) = if multi {
+        let (g, d) = desirability_direction(screening, &carried, &goals);
+        (g, Some(d))
+    } else {
+        let b: Vec<f64> = carried.iter().map(|&i| screening.estimates[i]).collect();
+        (b, None)
+    };
     if coefficients.iter().all(|b| *b == 0.0) {
         return Err(Stop::NoDirection.into());
     }
     let intercept = screening.intercept;
     let path_factors: Vec<Factor> = carried.iter().map(|&i| all[i].clone()).collect();
     let settings = &request.steepest;
-    let target = request.target;
+    let target = request.targets()[0].value;
     let predict =
         |c: &[f64]| intercept + coefficients.iter().zip(c).map(|(b, x)| b * x).sum::<f64>();
     let corner = |dir: PathDirection| -> Vec<f64> {
@@ -144,6 +216,12 @@ pub(crate) fn lay_out(
             .collect()
     };
     let (direction, why) = match (settings.direction, settings.start) {
+        _ if multi => (
+            PathDirection::Ascent,
+            DirectionReason::Desirability {
+                centre: centre_d.unwrap_or(f64::NAN),
+            },
+        ),
         (PathDirectionSetting::Ascent, _) => (PathDirection::Ascent, DirectionReason::Requested),
         (PathDirectionSetting::Descent, _) => (PathDirection::Descent, DirectionReason::Requested),
         (PathDirectionSetting::Auto, PathStartSetting::Centre) => {
@@ -216,12 +294,26 @@ pub(crate) fn lay_out(
                 break; // every factor is stuck at its bound
             }
         }
+        // With several targets `predicted` is the first target's screening prediction.
+        let predicted = if multi {
+            let e = &screening.responses[0];
+            e.intercept
+                + carried
+                    .iter()
+                    .zip(c)
+                    .map(|(&i, x)| e.estimates[i] * x)
+                    .sum::<f64>()
+        } else {
+            predict(c)
+        };
         points.push(PathPoint {
             step: i + 1,
             natural: p.clone(),
-            predicted: predict(c),
+            predicted,
             response: None,
             runs: 0,
+            responses: Vec::new(),
+            desirability: None,
         });
     }
     let state = PathState {
@@ -235,6 +327,7 @@ pub(crate) fn lay_out(
         dispatched: 0,
         centre: None,
         crossed: false,
+        goals: if multi { goals } else { Vec::new() },
     };
     Ok((state, why))
 }
@@ -306,14 +399,93 @@ pub(crate) fn assess(
     Ok(PathVerdict::Centre { centre, end })
 }
 
+/// Several targets: records each point's mean responses (`per_target[t]` = (responses, design
+/// rows) of target t) and their overall desirability, and decides: walk on while the
+/// desirability still rises; centre on the most desirable point once it fell after its peak,
+/// once a point has every response within tolerance (the most desirable of those), or when the
+/// path is exhausted.
+pub(crate) fn assess_desirability(
+    path: &mut PathState,
+    path_points: &[usize],
+    per_target: &[(Vec<f64>, Vec<u32>)],
+    targets: &[Target],
+) -> Result<PathVerdict, Stop> {
+    let n = per_target.len();
+    let mut sums: BTreeMap<usize, Vec<(f64, usize)>> = BTreeMap::new();
+    for (t, (y, rows)) in per_target.iter().enumerate() {
+        for (v, row) in y.iter().zip(rows) {
+            if let Some(&point) = path_points.get(*row as usize) {
+                let e = sums.entry(point).or_insert_with(|| vec![(0.0, 0); n]);
+                e[t].0 += v;
+                e[t].1 += 1;
+            }
+        }
+    }
+    for (point, per) in sums {
+        if per.iter().any(|(_, k)| *k == 0) {
+            continue; // a response is missing: the point cannot be judged
+        }
+        let means: Vec<f64> = per.iter().map(|(s, k)| s / *k as f64).collect();
+        let d: Vec<f64> = means
+            .iter()
+            .zip(&path.goals)
+            .map(|(y, g)| desirability(g, *y))
+            .collect();
+        let p = &mut path.points[point];
+        p.response = Some(means[0]);
+        p.runs = per[0].1;
+        p.desirability = Some(overall(&d));
+        p.responses = means;
+    }
+    let evaluated: Vec<(usize, f64)> = path.points[..path.dispatched]
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| p.desirability.map(|d| (i, d)))
+        .collect();
+    let within = |i: usize| {
+        targets
+            .iter()
+            .zip(&path.points[i].responses)
+            .all(|(t, y)| t.tolerance.accepts(*y, t.value))
+    };
+    let hits: Vec<(usize, f64)> = evaluated.iter().copied().filter(|e| within(e.0)).collect();
+    let best = |set: &[(usize, f64)]| {
+        set.iter()
+            .copied()
+            .reduce(|a, b| if b.1 > a.1 { b } else { a })
+    };
+    let peak = best(&evaluated);
+    let peaked = peak.is_some_and(|(i, d)| evaluated.iter().any(|e| e.0 > i && e.1 < d));
+    let exhausted = path.dispatched >= path.points.len();
+    if hits.is_empty() && !peaked && !exhausted {
+        return Ok(PathVerdict::WalkOn);
+    }
+    let (centre, end) = if let Some((i, _)) = best(&hits) {
+        (i, PathEnd::Hit)
+    } else if let Some((i, _)) = peak {
+        let end = if peaked {
+            PathEnd::Peaked
+        } else {
+            PathEnd::NeverCrossed
+        };
+        (i, end)
+    } else {
+        return Err(Stop::NoPathRun);
+    };
+    path.centre = Some(centre);
+    path.crossed = end != PathEnd::NeverCrossed;
+    Ok(PathVerdict::Centre { centre, end })
+}
+
 impl Campaign {
     /// Lays out the path after screening and sends its first points.
     pub(super) fn start_path(
         &mut self,
         screening: &ScreeningOutcome,
         all: &[Factor],
+        goals: Vec<Goal>,
     ) -> Result<Next, Halt> {
-        let (state, why) = lay_out(&self.request, screening, all)?;
+        let (state, why) = lay_out(&self.request, screening, all, goals)?;
         let s = &self.request.steepest;
         self.decide(
             StageKind::Steepest,
@@ -345,37 +517,45 @@ impl Campaign {
             })
             .collect();
         let specs = self.factor_specs(&factors);
-        let experiment = self.held_template(StageKind::Steepest)?;
         let replicates = self.request.steepest.replicates;
         self.path.as_mut().expect("path").dispatched = to;
-        Ok(self.issue(
+        self.issue_stage(
             StageKind::Steepest,
-            experiment,
             specs,
             DesignRequest::Explicit { points },
             replicates,
             ModelName::None,
             indices,
-        ))
+        )
     }
 
-    pub(super) fn after_path(&mut self, finished: &StageResult) -> Result<Next, Halt> {
-        let target = self.request.target;
-        let tolerance = self.request.tolerance;
-        let issued = self.batches[finished.batch].clone();
+    pub(super) fn after_path(&mut self, results: &[StageResult]) -> Result<Next, Halt> {
+        let targets = self.request.targets();
+        let target = targets[0].value;
+        let tolerance = targets[0].tolerance;
+        let issued = self.batches[results[0].batch].clone();
         let names = self.path.as_ref().expect("path").factors.clone();
-        let (_, y, rows) = observations(
-            finished.batch,
-            &finished.runs,
-            &names,
-            &self.request.response,
-        )?;
+        let mut per_target = Vec::new();
+        for (t, finished) in self.results_by_target(results) {
+            let (_, y, rows) = observations(finished.batch, &finished.runs, &names, &t.metric)?;
+            per_target.push((y, rows));
+        }
         let path = self.path.as_mut().expect("path");
-        match assess(path, &issued.path_points, &y, &rows, target, tolerance)? {
+        let verdict = if self.request.is_multi() {
+            assess_desirability(path, &issued.path_points, &per_target, &targets)?
+        } else {
+            let (y, rows) = &per_target[0];
+            assess(path, &issued.path_points, y, rows, target, tolerance)?
+        };
+        match verdict {
             PathVerdict::WalkOn => Ok(Next::Submit(self.dispatch_path()?)),
             PathVerdict::Centre { centre, end } => {
                 let path = self.path.as_ref().expect("path");
-                let text = wording::path_end(path, &end, centre, target);
+                let text = if self.request.is_multi() {
+                    wording::path_end_desirability(path, &end, centre, &targets)
+                } else {
+                    wording::path_end(path, &end, centre, target)
+                };
                 let centre_point = path.points[centre].natural.clone();
                 let half: Vec<f64> = path.step_natural.iter().map(|s| s.abs()).collect();
                 self.decide(StageKind::Steepest, text);

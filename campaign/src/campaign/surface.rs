@@ -8,14 +8,17 @@ use repose_doe::design::{rotatable_alpha, Factor};
 use repose_doe::{Fit, Region};
 use serde::{Deserialize, Serialize};
 
-use super::model::{candidate_factors, natural, observations, surface_fit};
+use super::model::{candidate_factors, natural, observations, surface_fit, target_goal};
 use super::optimum::OptimumChoice;
 use super::{wording, Campaign, Halt, Next, StageKind, StageResult, Stop};
-use crate::request::SurfaceDesign;
+use crate::request::{SurfaceDesign, Target};
 
 /// Quadratic fit summary of one response-surface round.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SurfaceFitSummary {
+    /// Several targets: the response this fit is of.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub response: String,
     /// R².
     pub r2: f64,
     /// Adjusted R².
@@ -51,6 +54,9 @@ pub struct SurfaceRound {
     pub fit: Option<SurfaceFitSummary>,
     /// Optimum once computed.
     pub optimum: Option<OptimumChoice>,
+    /// Several targets: one fit per target, in target order (`fit` is the first's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fits: Vec<SurfaceFitSummary>,
 }
 
 /// Something the plan adjusted, said in the decision.
@@ -205,6 +211,15 @@ pub(crate) fn plan(
     })
 }
 
+/// One target's quadratic in a round.
+pub(crate) struct FittedResponse {
+    pub target: Target,
+    pub fit: Fit,
+    pub summary: SurfaceFitSummary,
+    /// Its desirability goal (band from the round's runs).
+    pub goal: repose_doe::Goal,
+}
+
 /// The fit's statistics the decisions and the report use.
 pub(crate) fn summarise(fit: &Fit, alpha: f64) -> SurfaceFitSummary {
     let row_p = |s: &str| fit.anova_row(s).and_then(|r| r.p);
@@ -222,6 +237,7 @@ pub(crate) fn summarise(fit: &Fit, alpha: f64) -> SurfaceFitSummary {
         .collect();
     let stats = fit.stats();
     SurfaceFitSummary {
+        response: String::new(),
         r2: stats.r2,
         adj_r2: stats.adj_r2,
         pred_r2: stats.pred_r2,
@@ -264,36 +280,50 @@ impl Campaign {
             region: plan.region,
             fit: None,
             optimum: None,
+            fits: Vec::new(),
         });
         let specs = self.factor_specs(&plan.factors);
-        let experiment = self.held_template(StageKind::ResponseSurface)?;
         let replicates = self.request.response_surface.replicates;
-        Ok(Next::Submit(self.issue(
+        Ok(Next::Submit(self.issue_stage(
             StageKind::ResponseSurface,
-            experiment,
             specs,
             plan.design,
             replicates,
             ModelName::Quadratic,
             Vec::new(),
-        )))
+        )?))
     }
 
-    pub(super) fn after_surface(&mut self, finished: &StageResult) -> Result<Next, Halt> {
+    /// Fits one quadratic per target (`results` in experiment order), then the optimum.
+    pub(super) fn after_surface(&mut self, results: &[StageResult]) -> Result<Next, Halt> {
         let round = self.surfaces.last().expect("surface round").clone();
-        let fit = surface_fit(&self.request, &round, finished.batch, &finished.runs)?;
-        let summary = summarise(&fit, self.request.alpha);
-        self.decide(
-            StageKind::ResponseSurface,
-            wording::surface_fit(&summary, self.request.alpha),
-        );
         let names: Vec<String> = round.factors.iter().map(|f| f.name.clone()).collect();
-        let (_, y, _) = observations(
-            finished.batch,
-            &finished.runs,
-            &names,
-            &self.request.response,
-        )?;
-        self.choose_optimum(&round, &fit, &y, summary)
+        let multi = self.request.is_multi();
+        let mut fitted = Vec::new();
+        for (target, finished) in self.results_by_target(results) {
+            let fit = surface_fit(
+                &self.request,
+                &target,
+                &round,
+                finished.batch,
+                &finished.runs,
+            )?;
+            let mut summary = summarise(&fit, self.request.alpha);
+            if multi {
+                summary.response = target.label.clone();
+            }
+            self.decide(
+                StageKind::ResponseSurface,
+                wording::surface_fit(&summary, self.request.alpha),
+            );
+            let (_, y, _) = observations(finished.batch, &finished.runs, &names, &target.metric)?;
+            fitted.push(FittedResponse {
+                goal: target_goal(target.value, &y),
+                target,
+                fit,
+                summary,
+            });
+        }
+        self.choose_optimum(&round, fitted)
     }
 }

@@ -13,7 +13,7 @@ use super::steepest::{CornerSide, DirectionReason, PathEnd, PathState};
 use super::surface::{SurfaceFitSummary, SurfaceLayout, SurfaceNote};
 use super::verification::{VerificationNext, VerificationOutcome};
 use super::{CalibratedValue, Stop};
-use crate::request::{relative_error_pct, DrillingValidation, Tolerance};
+use crate::request::{relative_error_pct, DrillingValidation, Target};
 
 /// Formats a number with 4 significant digits for decision texts.
 pub(crate) fn fmt_num(v: f64) -> String {
@@ -97,6 +97,22 @@ pub(crate) fn stop(stop: &Stop) -> String {
         Stop::NoVerificationRun => {
             "no verification run completed; resubmit the verification batch".into()
         }
+        Stop::TargetsStillOutside { rounds, outside } => format!(
+            "verification is still outside the tolerance after {rounds} response-surface rounds \
+             for {} . The model's optimum does not reproduce in simulation for every target: \
+             check the responses' noise (replicates), the allowed ranges, or whether the targets \
+             can be met together.",
+            outside
+                .iter()
+                .map(|c| format!(
+                    "{} (mean {}, relative error {}%)",
+                    c.response,
+                    fmt_num(c.mean),
+                    fmt_num(c.relative_error_pct)
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
         Stop::StillOutside {
             rounds,
             mean,
@@ -130,6 +146,9 @@ pub(crate) fn screening_plan(names: &[String], design: &DesignRequest, alpha: f6
 
 /// Stage 1 outcome: what was significant, what is carried and why, what is held.
 pub(crate) fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> String {
+    if !s.responses.is_empty() {
+        return screening_overall(s, alpha, max_factors);
+    }
     let index = |name: &String| s.factors.iter().position(|f| f == name).expect("a factor");
     let sig_text = |names: &[String]| -> String {
         names
@@ -198,6 +217,84 @@ pub(crate) fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) ->
     text
 }
 
+/// Stage 1 with several targets: each response's significant factors, then the factors carried
+/// over all of them.
+fn screening_overall(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> String {
+    let per: Vec<String> = s
+        .responses
+        .iter()
+        .map(|e| {
+            let sig: Vec<String> = e
+                .significant
+                .iter()
+                .map(|n| {
+                    let i = s.factors.iter().position(|f| f == n).expect("a factor");
+                    format!(
+                        "{n} (p {}, t {})",
+                        fmt_p(e.p_values[i]),
+                        fmt_num(e.t_values[i].unwrap_or(f64::NAN))
+                    )
+                })
+                .collect();
+            format!(
+                "{}: {}",
+                e.response,
+                if sig.is_empty() {
+                    "none".to_owned()
+                } else {
+                    sig.join(", ")
+                }
+            )
+        })
+        .collect();
+    let mut text = format!(
+        "Significant at α = {alpha}, per response — {}. ",
+        per.join("; ")
+    );
+    text.push_str(&match &s.rule {
+        CarryRule::Significant => format!(
+            "{} significant for at least one response; carried forward.",
+            list(&s.carried)
+        ),
+        CarryRule::TopOfSignificant { dropped } => format!(
+            "{} factors are significant for at least one response, more than the {max_factors} a \
+             response surface is planned for; the {max_factors} with the largest |t| over the \
+             responses are carried ({}), {} is/are held like the non-significant ones.",
+            s.significant.len(),
+            list(&s.carried),
+            list(dropped)
+        ),
+        CarryRule::NoneSignificant => format!(
+            "No factor is significant for any response: the screening cannot separate any effect \
+             from noise. Fallback: the {} with the largest |t| over the responses ({}) are \
+             carried anyway; consider more replicates or wider ranges if the path does not move \
+             the responses.",
+            s.carried.len(),
+            list(&s.carried)
+        ),
+    });
+    if !s.held.is_empty() {
+        let held_names: Vec<String> = s.held.iter().map(|h| h.name.clone()).collect();
+        let values: Vec<String> = s
+            .held
+            .iter()
+            .map(|h| {
+                format!(
+                    "{}{}",
+                    fmt_num(h.value),
+                    if h.user_value { " (user value)" } else { "" }
+                )
+            })
+            .collect();
+        text.push_str(&format!(
+            " {} held at {} (mid-range unless the user fixed a value).",
+            list(&held_names),
+            values.join(", ")
+        ));
+    }
+    text
+}
+
 /// Stage 2 plan: the direction and why, the steps, the points.
 pub(crate) fn path_layout(
     path: &PathState,
@@ -216,6 +313,12 @@ pub(crate) fn path_layout(
             fmt_num(*target),
             if *above { "above" } else { "below" },
             fmt_num(*intercept)
+        ),
+        DirectionReason::Desirability { centre } => format!(
+            "of the overall desirability, the geometric mean of every target's desirability; the \
+             direction is its gradient under the screening models at the centre of the screening \
+             region, where it is predicted {}",
+            fmt_num(*centre)
         ),
         DirectionReason::Corner {
             low_corner,
@@ -308,7 +411,8 @@ pub(crate) fn path_end(path: &PathState, end: &PathEnd, centre: usize, target: f
             centre_point.step,
             point_text
         ),
-        PathEnd::NeverCrossed => format!(
+        // One target never peaks (that is the several-targets ending).
+        PathEnd::NeverCrossed | PathEnd::Peaked => format!(
             "Responses along the path: {}. The path never crossed the target {} within its {} \
              points (the allowed ranges or max_points end it). Fallback: the closest point, \
              step {} ({}, relative error {}%; {}), becomes the centre anyway; the response surface \
@@ -321,6 +425,54 @@ pub(crate) fn path_end(path: &PathState, end: &PathEnd, centre: usize, target: f
             fmt_num(best),
             fmt_num(relative_error_pct(best, target)),
             point_text
+        ),
+    }
+}
+
+/// Stage 2 outcome with several targets: the overall desirability along the path and the point
+/// chosen as the centre.
+pub(crate) fn path_end_desirability(
+    path: &PathState,
+    end: &PathEnd,
+    centre: usize,
+    targets: &[Target],
+) -> String {
+    let along: Vec<String> = path.points[..path.dispatched]
+        .iter()
+        .filter_map(|p| {
+            p.desirability.map(|d| {
+                let values: Vec<String> = targets
+                    .iter()
+                    .zip(&p.responses)
+                    .map(|(t, y)| format!("{} {}", t.label, fmt_num(*y)))
+                    .collect();
+                format!("step {}: {} ({})", p.step, fmt_num(d), values.join(", "))
+            })
+        })
+        .collect();
+    let c = &path.points[centre];
+    let point_text = setting(&path.factors, &c.natural);
+    let d = fmt_num(c.desirability.unwrap_or(f64::NAN));
+    let head = format!("Overall desirability along the path: {}.", along.join("; "));
+    match end {
+        PathEnd::Hit => format!(
+            "{head} Step {} has every response within its tolerance (desirability {d}) and \
+             becomes the centre of the response surface ({point_text}).",
+            c.step
+        ),
+        PathEnd::Peaked | PathEnd::Crossed { .. } => format!(
+            "{head} It peaks at step {} ({d}) and falls after it; step {} becomes the centre of \
+             the response surface ({point_text}).",
+            c.step, c.step
+        ),
+        PathEnd::NeverCrossed => format!(
+            "{head} It did not peak within the path's {} points (the allowed ranges or \
+             max_points end it). Fallback: the most desirable point, step {} ({d}), becomes the \
+             centre anyway ({point_text}); the response surface may not contain a setting that \
+             meets every target, in which case the optimum stage reports the most desirable \
+             reachable setting and verification decides.",
+            path.points.len(),
+            c.step
         ),
     }
 }
@@ -413,7 +565,11 @@ pub(crate) fn surface_fit(summary: &SurfaceFitSummary, alpha: f64) -> String {
             " The model as a whole is not significant: the optimum below rests on a weak fit.",
         );
     }
-    text
+    if summary.response.is_empty() {
+        text
+    } else {
+        format!("{}: {text}", summary.response)
+    }
 }
 
 /// Stage 4 outcome: where the target is met (a point, a level set, or not at all).
@@ -467,37 +623,138 @@ pub(crate) fn optimum(found: &OptimumFound, names: &[String], target: f64) -> St
     }
 }
 
+/// Stage 4 with several targets: the setting of best overall desirability, every response's
+/// prediction there, and the level set.
+pub(crate) fn optimum_overall(
+    found: &OptimumFound,
+    names: &[String],
+    targets: &[Target],
+) -> String {
+    let choice = &found.choice;
+    let chosen = setting(names, &choice.natural);
+    let predicted: Vec<String> = targets
+        .iter()
+        .zip(&choice.predictions)
+        .map(|(t, p)| format!("{} {} (target {})", t.label, fmt_num(*p), fmt_num(t.value)))
+        .collect();
+    let predicted = predicted.join(", ");
+    if choice.level_set {
+        let extent: Vec<String> = names
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| *i < choice.natural_min.len())
+            .map(|(i, n)| {
+                format!(
+                    "{n} {}..{}",
+                    fmt_num(choice.natural_min[i]),
+                    fmt_num(choice.natural_max[i])
+                )
+            })
+            .collect();
+        format!(
+            "Every target is met on a whole level set, not at one point: {} of {} starts reached \
+             overall desirability {} at {} distinct settings spread over {} coded units (natural \
+             extent {}). Chosen: the tied setting closest to the design centre (the least \
+             extrapolating), {chosen}; predicted {predicted}.",
+            choice.starts_at_best,
+            choice.starts,
+            fmt_num(found.best_desirability),
+            choice.distinct_at_best,
+            fmt_num(choice.spread),
+            extent.join(", ")
+        )
+    } else if found.target_met() {
+        format!(
+            "Every target is met at a single setting (overall desirability {}): {chosen}; \
+             predicted {predicted}.",
+            fmt_num(found.best_desirability)
+        )
+    } else {
+        format!(
+            "The targets cannot all be met inside the design region (best overall desirability \
+             {}); the most desirable setting is {chosen}, predicted {predicted}. Verification will \
+             measure the gaps.",
+            fmt_num(found.best_desirability)
+        )
+    }
+}
+
 /// Stage 5 plan.
-pub(crate) fn verification_plan(replicates: u32, tolerance: &Tolerance) -> String {
+pub(crate) fn verification_plan(replicates: u32, targets: &[Target]) -> String {
+    if let [t] = targets {
+        return format!(
+            "Verify with {replicates} replicate simulations at the optimum, fresh seeds; accepted \
+             if the mean is within {}.",
+            t.tolerance.describe()
+        );
+    }
+    let each: Vec<String> = targets
+        .iter()
+        .map(|t| format!("{} within {}", t.label, t.tolerance.describe()))
+        .collect();
     format!(
-        "Verify with {replicates} replicate simulations at the optimum, fresh seeds; accepted \
-         if the mean is within {}.",
-        tolerance.describe()
+        "Verify with {replicates} replicate simulations of each experiment at the optimum, fresh \
+         seeds; accepted if every response's mean is within its tolerance: {}.",
+        list(&each)
     )
 }
 
 /// Stage 5 outcome and what follows it.
 pub(crate) fn verification(
     v: &VerificationOutcome,
-    target: f64,
-    tolerance: &Tolerance,
+    targets: &[Target],
     next: &VerificationNext,
 ) -> String {
-    let base = format!(
-        "Verification: {} runs, mean {} (sd {}), target {}, relative error {}% — {} the \
+    let base = if v.checks.is_empty() {
+        let (target, tolerance) = (targets[0].value, &targets[0].tolerance);
+        format!(
+            "Verification: {} runs, mean {} (sd {}), target {}, relative error {}% — {} the \
          tolerance of {}.",
-        v.responses.len(),
-        fmt_num(v.mean),
-        fmt_num(v.std),
-        fmt_num(target),
-        fmt_num(v.relative_error_pct),
-        if v.within_tolerance {
-            "within"
-        } else {
-            "outside"
-        },
-        tolerance.describe()
-    );
+            v.responses.len(),
+            fmt_num(v.mean),
+            fmt_num(v.std),
+            fmt_num(target),
+            fmt_num(v.relative_error_pct),
+            if v.within_tolerance {
+                "within"
+            } else {
+                "outside"
+            },
+            tolerance.describe()
+        )
+    } else {
+        let each: Vec<String> = v
+            .checks
+            .iter()
+            .zip(targets)
+            .map(|(c, t)| {
+                format!(
+                    "{}: {} runs, mean {} (sd {}), target {}, relative error {}% — {} {}",
+                    c.response,
+                    c.responses.len(),
+                    fmt_num(c.mean),
+                    fmt_num(c.std),
+                    fmt_num(c.target),
+                    fmt_num(c.relative_error_pct),
+                    if c.within_tolerance {
+                        "within"
+                    } else {
+                        "outside"
+                    },
+                    t.tolerance.describe()
+                )
+            })
+            .collect();
+        format!(
+            "Verification: {}. {}",
+            each.join("; "),
+            if v.within_tolerance {
+                "Every response is within its tolerance."
+            } else {
+                "Not every response is within its tolerance."
+            }
+        )
+    };
     match next {
         VerificationNext::Accept | VerificationNext::GiveUp => base,
         VerificationNext::AnotherRound {
