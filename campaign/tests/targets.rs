@@ -290,3 +290,52 @@ fn a_multi_target_request_is_validated_with_the_field_named() {
         .to_string();
     assert!(e.starts_with("target"), "{e}");
 }
+
+#[test]
+fn the_report_shows_every_response_the_overall_desirability_and_the_validation() {
+    let (campaign, results, _) = drive(request(json!({
+        "validation": {
+            "experiment": lookup(&["opening_diameter_mm", "effective_depth_mm"]),
+            "measured": {"opening_diameter_mm": 63.20, "effective_depth_mm": 603.66},
+        }
+    })));
+    let html = repose_campaign::report_html(
+        &campaign,
+        &results,
+        &repose_campaign::ReportPictures::default(),
+    );
+    for needle in [
+        "aor.angle_deg (target 34)",
+        "shear.cohesion_kpa (target 2.5)",
+        "Overall desirability at the optimum",
+        "overall desirability",
+        "Validation (not a target)",
+        "opening_diameter_mm",
+        "63.2",
+        "603.7",
+    ] {
+        assert!(html.contains(needle), "report lacks {needle:?}");
+    }
+    // Each response has its own screening Pareto chart, ANOVA and contour plot.
+    assert_eq!(
+        html.matches("Pareto chart of standardized effects").count(),
+        2
+    );
+    assert_eq!(html.matches("aor.angle_deg over A × B").count(), 1);
+    assert_eq!(html.matches("shear.cohesion_kpa over A × B").count(), 1);
+    let body = html
+        .trim_start_matches("<!DOCTYPE html>")
+        .replace("<meta charset=\"utf-8\">", "");
+    roxmltree::Document::parse(&body).expect("well-formed page");
+
+    let json = repose_campaign::report_json(&campaign, &results);
+    let fits = json["stages"]["screening"]["fits"].as_array().unwrap();
+    assert_eq!(fits.len(), 2);
+    assert_eq!(fits[1]["response"], "shear.cohesion_kpa");
+    assert!(fits[1]["fit"]["anova"].is_array());
+    let full = json["stages"]["response_surfaces"][0]["fits_full"]
+        .as_array()
+        .unwrap();
+    assert_eq!(full.len(), 2);
+    assert_eq!(json["summary"]["targets"].as_array().unwrap().len(), 2);
+}

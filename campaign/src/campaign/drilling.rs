@@ -113,7 +113,10 @@ impl Campaign {
     pub(super) fn after_drilling(&mut self, finished: &StageResult) -> Result<Next, Halt> {
         let drilling = self.request.drilling.as_ref().expect("drilling requested");
         let outcome = compare(drilling, &finished.runs);
-        self.decide(StageKind::Drilling, wording::drilling(&outcome));
+        self.decide(
+            StageKind::Drilling,
+            wording::drilling(&outcome, self.request.is_multi()),
+        );
         self.drilling = Some(outcome);
         Ok(self.finish())
     }

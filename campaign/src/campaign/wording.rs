@@ -788,7 +788,7 @@ pub(crate) fn drilling_plan(d: &DrillingValidation) -> String {
 }
 
 /// Stage 6 outcome: each metric measured against simulated.
-pub(crate) fn drilling(outcome: &DrillingOutcome) -> String {
+pub(crate) fn drilling(outcome: &DrillingOutcome, several_targets: bool) -> String {
     let lines: Vec<String> = outcome
         .metrics
         .iter()
@@ -807,6 +807,8 @@ pub(crate) fn drilling(outcome: &DrillingOutcome) -> String {
         "Drilling validation {}: {}.",
         if outcome.passed {
             "passed"
+        } else if several_targets {
+            "FAILED — the parameters reproduce the targets but not the drilled hole"
         } else {
             "FAILED — the parameters reproduce the angle of repose but not the drilled hole"
         },
