@@ -339,3 +339,37 @@ fn the_report_shows_every_response_the_overall_desirability_and_the_validation()
     assert_eq!(full.len(), 2);
     assert_eq!(json["summary"]["targets"].as_array().unwrap().len(), 2);
 }
+
+#[test]
+fn every_example_campaign_file_is_a_valid_request() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/campaigns");
+    let mut files = 0;
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) != Some("json") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let request: CampaignRequest =
+            serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        Campaign::start(request.clone()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        files += 1;
+        if path.ends_with("paper_three_targets.json") {
+            let labels: Vec<String> = request.targets().into_iter().map(|t| t.label).collect();
+            assert_eq!(
+                labels,
+                [
+                    "aor.angle_deg",
+                    "shear.cohesion_kpa",
+                    "shear.friction_angle_deg"
+                ]
+            );
+            assert_eq!(request.experiment_keys(), ["aor", "shear"]);
+            let v = request.drilling.as_ref().unwrap();
+            assert_eq!(v.experiment.kind, "drill");
+            assert_eq!(v.measured["opening_diameter_mm"], 63.20);
+            assert_eq!(v.measured["effective_depth_mm"], 603.66);
+        }
+    }
+    assert!(files >= 4, "{files} campaign files");
+}
