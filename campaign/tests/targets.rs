@@ -102,9 +102,12 @@ fn add_rows(batch: &mut BatchRequest) {
         for (f, v) in FACTORS.iter().zip(&x) {
             r.insert((*f).into(), json!(v));
         }
+        // The target experiments' rows carry both metrics (a batch reads the ones it needs).
         let metrics: Vec<(&str, f64)> = match batch.response.as_str() {
-            "angle_deg" => vec![("angle_deg", angle(x[0], x[1]) + 0.05 * dev)],
-            "cohesion_kpa" => vec![("cohesion_kpa", cohesion(x[1]) + 0.01 * dev)],
+            "angle_deg" | "cohesion_kpa" => vec![
+                ("angle_deg", angle(x[0], x[1]) + 0.05 * dev),
+                ("cohesion_kpa", cohesion(x[1]) + 0.01 * dev),
+            ],
             _ => vec![
                 ("opening_diameter_mm", 60.0 + 10.0 * x[0] + 0.05 * dev),
                 ("effective_depth_mm", 600.0 + 20.0 * x[1] + 0.2 * dev),
@@ -372,4 +375,75 @@ fn every_example_campaign_file_is_a_valid_request() {
         }
     }
     assert!(files >= 4, "{files} campaign files");
+}
+
+#[test]
+fn two_metrics_of_one_experiment_share_its_batches() {
+    let (campaign, _, next) = drive(request(json!({
+        "experiments": {"soil": lookup(&["angle_deg", "cohesion_kpa"])},
+        "targets": [
+            {"response": "soil.angle_deg", "target": 34.0, "tolerance": {"relative_pct": 2}},
+            {"response": "soil.cohesion_kpa", "target": 2.5, "tolerance": {"relative_pct": 4}}
+        ],
+    })));
+    let Next::Finished(summary) = next else {
+        panic!("not finished: {next:?}");
+    };
+    // One batch per stage step: both responses come from the same runs.
+    assert_eq!(
+        campaign
+            .batches
+            .iter()
+            .filter(|b| b.stage == StageKind::Screening)
+            .count(),
+        1
+    );
+    assert!(campaign.batches.iter().all(|b| b.experiment == "soil"));
+    assert!(!campaign.batches[0].request.name.contains('['));
+    let value = |name: &str| {
+        summary
+            .parameters
+            .iter()
+            .find(|p| p.name == name)
+            .unwrap()
+            .value
+    };
+    assert!((value("A") - 0.25).abs() < 0.02, "A = {}", value("A"));
+    assert!((value("B") - 0.5).abs() < 0.02, "B = {}", value("B"));
+    assert!(summary.targets.iter().all(|t| t.within_tolerance));
+}
+
+#[test]
+fn targets_that_cannot_hold_together_end_in_needs_attention_naming_the_response() {
+    // The angle can reach at most 42 in the allowed ranges: 45 is out of reach.
+    let (campaign, _, next) = drive(request(json!({
+        "targets": [
+            {"response": "aor.angle_deg", "target": 45.0, "tolerance": {"relative_pct": 2}},
+            {"response": "shear.cohesion_kpa", "target": 2.5, "tolerance": {"relative_pct": 4}}
+        ],
+        "response_surface": {"max_extra_rounds": 1},
+    })));
+    for d in &campaign.decisions {
+        println!("[{:?} r{}] {}", d.stage, d.round, d.text);
+    }
+    let Next::NeedsAttention(reason) = next else {
+        panic!("expected a stop: {next:?}");
+    };
+    assert!(
+        reason.contains("after 2 response-surface rounds"),
+        "{reason}"
+    );
+    assert!(reason.contains("aor.angle_deg"), "{reason}");
+    assert!(matches!(campaign.status, Status::NeedsAttention { .. }));
+    let optimum = campaign
+        .decisions
+        .iter()
+        .find(|d| d.stage == StageKind::Optimum);
+    assert!(
+        optimum.unwrap().text.contains("cannot all be met"),
+        "{:?}",
+        optimum
+    );
+    assert_eq!(campaign.verifications.len(), 2);
+    assert!(campaign.verifications.iter().all(|v| !v.within_tolerance));
 }

@@ -99,7 +99,7 @@ pub(crate) fn stop(stop: &Stop) -> String {
         }
         Stop::TargetsStillOutside { rounds, outside } => format!(
             "verification is still outside the tolerance after {rounds} response-surface rounds \
-             for {} . The model's optimum does not reproduce in simulation for every target: \
+             for {}. The model's optimum does not reproduce in simulation for every target: \
              check the responses' noise (replicates), the allowed ranges, or whether the targets \
              can be met together.",
             outside
