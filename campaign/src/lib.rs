@@ -71,8 +71,8 @@
 //! [`Campaign::pending`]) and decides when the last has finished. Screening fits one linear
 //! model per response (a factor is significant if it is for any response, ranked by its largest
 //! |t|); the path climbs the overall desirability (its gradient under the screening models at
-//! the screening centre; centred on its most desirable point once it peaked, or on the first
-//! point with every response in tolerance); the response surface fits one quadratic per
+//! the screening centre; centred on its most desirable point once it peaked, or on the most
+//! desirable point with every response in tolerance as soon as there is one); the response surface fits one quadratic per
 //! response; the optimum maximises the overall desirability; verification accepts only if
 //! every response is within its own tolerance. The one-target form behaves exactly as before.
 mod campaign;

@@ -677,6 +677,14 @@ impl CampaignRequest {
                 ));
             }
         }
+        if self.steepest.direction != PathDirectionSetting::Auto {
+            return Err(bad(
+                "steepest.direction",
+                "with several targets the path always climbs the overall desirability; leave \
+                 it `auto`"
+                    .into(),
+            ));
+        }
         for (i, t) in self.targets.iter().enumerate() {
             let field = format!("targets[{i}]");
             let Some((key, metric)) = t.response.split_once('.') else {

@@ -275,6 +275,7 @@ fn a_multi_target_request_is_validated_with_the_field_named() {
             .starts_with("targets[0].response"),
     );
     assert!(err(json!({"target": 34.0})).starts_with("target"));
+    assert!(err(json!({"steepest": {"direction": "descent"}})).starts_with("steepest.direction"));
     assert!(err(json!({"targets": [
         {"response": "aor.angle_deg", "target": 34.0},
         {"response": "shear", "target": 2.5}
