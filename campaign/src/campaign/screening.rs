@@ -211,7 +211,7 @@ impl Campaign {
         let design = r.screening.design.clone();
         let replicates = r.screening.replicates;
         let names: Vec<String> = r.factors.iter().map(|f| f.name.clone()).collect();
-        let text = wording::screening_plan(&names, &design, r.alpha);
+        let text = wording::screening_plan(&names, &design, r.alpha, &r.experiment_keys());
         self.decide(StageKind::Screening, text);
         self.issue_stage(
             StageKind::Screening,

@@ -564,3 +564,89 @@ impl Campaign {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::campaign::screening::{CarryRule, ResponseEffects};
+
+    fn effects(response: &str, intercept: f64, estimates: Vec<f64>) -> ResponseEffects {
+        ResponseEffects {
+            response: response.into(),
+            t_values: vec![None; estimates.len()],
+            p_values: vec![None; estimates.len()],
+            estimates,
+            intercept,
+            t_critical: f64::NAN,
+            significant: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn the_path_direction_is_the_gradient_of_the_overall_desirability() {
+        // Two linear screening models over three candidates, the second not carried.
+        let responses = vec![
+            effects("a.y1", 36.0, vec![4.0, 2.0, 9.0]),
+            effects("b.y2", 2.2, vec![-0.1, 1.5, 9.0]),
+        ];
+        let screening = ScreeningOutcome {
+            factors: vec!["A".into(), "X".into(), "B".into()],
+            estimates: responses[0].estimates.clone(),
+            t_values: vec![None; 3],
+            p_values: vec![None; 3],
+            intercept: 36.0,
+            t_critical: f64::NAN,
+            significant: Vec::new(),
+            carried: vec!["A".into(), "B".into()],
+            rule: CarryRule::Significant,
+            held: Vec::new(),
+            responses,
+        };
+        let carried = [0, 2];
+        let goals = [
+            Goal::Target {
+                target: 34.0,
+                lower: 28.0,
+                upper: 44.0,
+            },
+            Goal::Target {
+                target: 2.5,
+                lower: 0.5,
+                upper: 4.5,
+            },
+        ];
+        let (g, d0) = desirability_direction(&screening, &carried, &goals);
+        let ln_d = |x: &[f64]| {
+            let d: Vec<f64> = screening
+                .responses
+                .iter()
+                .zip(&goals)
+                .map(|(e, goal)| {
+                    let y = e.intercept
+                        + carried
+                            .iter()
+                            .zip(x)
+                            .map(|(&i, v)| e.estimates[i] * v)
+                            .sum::<f64>();
+                    desirability(goal, y)
+                })
+                .collect();
+            overall(&d).ln()
+        };
+        assert!((d0 - ln_d(&[0.0, 0.0]).exp()).abs() < 1e-12);
+        let h = 1e-6;
+        let numeric: Vec<f64> = (0..2)
+            .map(|j| {
+                let mut up = [0.0, 0.0];
+                let mut down = [0.0, 0.0];
+                up[j] = h;
+                down[j] = -h;
+                (ln_d(&up) - ln_d(&down)) / (2.0 * h)
+            })
+            .collect();
+        // Same direction (∇ln D = g / n with n = 2 responses).
+        for (a, b) in g.iter().zip(&numeric) {
+            assert!((a / 2.0 - b).abs() < 1e-6, "{g:?} vs {numeric:?}");
+        }
+    }
+}

@@ -134,14 +134,27 @@ pub(crate) fn stopped(reason: &str) -> String {
 }
 
 /// Stage 1 plan.
-pub(crate) fn screening_plan(names: &[String], design: &DesignRequest, alpha: f64) -> String {
-    format!(
+pub(crate) fn screening_plan(
+    names: &[String],
+    design: &DesignRequest,
+    alpha: f64,
+    experiments: &[String],
+) -> String {
+    let mut text = format!(
         "Screen {} candidate factors ({}) with a {} design, linear model, significance α = {}.",
         names.len(),
         list(names),
         describe_design(design),
         alpha
-    )
+    );
+    if experiments.len() > 1 {
+        text.push_str(&format!(
+            " Every stage runs each experiment the targets need ({}) at every design point, one \
+             batch per experiment, and decides when the last has finished.",
+            list(experiments)
+        ));
+    }
+    text
 }
 
 /// Stage 1 outcome: what was significant, what is carried and why, what is held.
