@@ -10,7 +10,7 @@ use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
 use crate::campaign::{fit_or_reason, fmt_num, fmt_p, screening_fit, surface_fit};
-use crate::svg::{contour, esc, normal_quantile, pareto, path_chart, scatter};
+use crate::svg::{contour, desirability_chart, esc, normal_quantile, pareto, path_chart, scatter};
 use crate::{relative_error_pct, Campaign, IssuedBatch, StageKind, StageResult, Status, Target};
 
 /// Pictures the caller may add (SVG documents, e.g. the `aor` kind's side view of a
@@ -740,6 +740,14 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         let pr: Vec<f64> = p.points.iter().map(|pt| pt.predicted).collect();
         o.push_str("<div class=\"figs\">");
         o.push_str(&path_chart(&xs, &ys, &pr, t0.value));
+        if multi {
+            let d: Vec<f64> = p
+                .points
+                .iter()
+                .map(|pt| pt.desirability.unwrap_or(f64::NAN))
+                .collect();
+            o.push_str(&desirability_chart(&xs, &d));
+        }
         o.push_str("</div>");
     }
 

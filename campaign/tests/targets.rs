@@ -312,6 +312,7 @@ fn the_report_shows_every_response_the_overall_desirability_and_the_validation()
         "aor.angle_deg (target 34)",
         "shear.cohesion_kpa (target 2.5)",
         "Overall desirability at the optimum",
+        "Steepest path: overall desirability per step",
         "overall desirability",
         "Validation (not a target)",
         "opening_diameter_mm",
