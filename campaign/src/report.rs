@@ -825,16 +825,19 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                     .collect();
                 let _ = write!(
                     o,
-                    "<p>Overall desirability {} at the chosen setting; predicted {}. The \
-                     level-set table's \"predicted\" is {}.</p>",
+                    "<p>Overall desirability {} at the chosen setting; predicted {}.</p>",
                     fmt_num(opt.desirability),
-                    each.join(", "),
-                    esc(&t0.label)
+                    each.join(", ")
                 );
             }
             let mut header = vec![s("#")];
             header.extend(round.factors.iter().map(|f| f.name.clone()));
-            header.extend(["predicted", "desirability"].map(s));
+            if multi {
+                header.extend(targets.iter().map(|t| format!("predicted {}", t.label)));
+                header.push(s("overall desirability"));
+            } else {
+                header.extend(["predicted", "desirability"].map(s));
+            }
             let rows: Vec<Vec<String>> = opt
                 .solutions
                 .iter()
@@ -846,7 +849,11 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                         (i + 1).to_string()
                     }];
                     row.extend(sol.natural.iter().map(|v| fmt_num(*v)));
-                    row.push(fmt_num(sol.predicted));
+                    if multi {
+                        row.extend(sol.predictions.iter().map(|v| fmt_num(*v)));
+                    } else {
+                        row.push(fmt_num(sol.predicted));
+                    }
                     row.push(fmt_num(sol.desirability));
                     row
                 })

@@ -313,6 +313,7 @@ fn the_report_shows_every_response_the_overall_desirability_and_the_validation()
         "shear.cohesion_kpa (target 2.5)",
         "Overall desirability at the optimum",
         "Steepest path: overall desirability per step",
+        "predicted shear.cohesion_kpa",
         "overall desirability",
         "Validation (not a target)",
         "opening_diameter_mm",

@@ -18,8 +18,11 @@ pub struct LevelSetPoint {
     pub natural: Vec<f64>,
     /// Predicted response.
     pub predicted: f64,
-    /// Desirability.
+    /// Desirability (overall, with several targets).
     pub desirability: f64,
+    /// Several targets: each target's prediction (target order); `predicted` is the first's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub predictions: Vec<f64>,
 }
 
 /// Stage 4 outcome of one round.
@@ -95,6 +98,11 @@ pub(crate) fn find(
             .unwrap_or_else(|| natural(factors, &s.coded)),
         predicted: s.responses.first().map_or(f64::NAN, |r| r.value),
         desirability: s.desirability,
+        predictions: if fits.len() > 1 {
+            s.responses.iter().map(|r| r.value).collect()
+        } else {
+            Vec::new()
+        },
     };
     let chosen = to_point(best);
     let choice = OptimumChoice {
