@@ -340,11 +340,9 @@ impl Campaign {
             .unwrap_or(0);
         if stage != StageKind::Drilling && part + 1 < keys.len() {
             // The stage's next experiment runs the same design before anything is decided.
+            let batch = self.issue_part(&keys[part + 1])?;
             self.pending.push(finished.clone());
-            return match self.issue_part(&keys[part + 1]) {
-                Ok(batch) => Ok(Next::Submit(batch)),
-                Err(e) => Err(e),
-            };
+            return Ok(Next::Submit(batch));
         }
         let mut results = std::mem::take(&mut self.pending);
         results.push(finished.clone());
