@@ -326,5 +326,12 @@ async fn a_two_target_campaign_runs_one_batch_per_experiment_and_survives_a_rest
     let (status, html) = server.get_text(&format!("/v1/campaigns/{id}/report")).await;
     assert_eq!(status, StatusCode::OK);
     assert!(html.contains("shear.cohesion_kpa (target 2.5)"));
+
+    // An experiment of a kind the catalog does not have is refused at creation, naming it.
+    let mut unknown = request.clone();
+    unknown["experiments"]["shear"]["kind"] = json!("no_such_kind");
+    let (status, body) = server.post("/v1/campaigns", &unknown).await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(body.to_string().contains("`shear`"), "{body}");
     server.stop().await;
 }
