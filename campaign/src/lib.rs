@@ -53,13 +53,28 @@
 //!    the target was reachable in the last region, with the same half-ranges (the region moves)
 //!    when it was not; at most
 //!    `response_surface.max_extra_rounds` (2) times; then [`Next::NeedsAttention`].
-//! 6. **Drilling validation** (optional, `<name>: drilling validation`): one explicit batch of
-//!    the drilling experiment at the calibrated parameters (paths remapped by
+//! 6. **Drilling validation** (optional `drilling`, also spelled `validation`;
+//!    `<name>: drilling validation`): one explicit batch of the validation experiment (the
+//!    drilling test; it is not a target) at the calibrated parameters (paths remapped by
 //!    `drilling.paths`), each measured metric compared with the simulated mean. A failure is
 //!    reported in the decisions and the summary; the calibration itself is still finished.
 //!
 //! With `seed` set, batch `i` gets the seed `splitmix64(seed ^ i·φ)`, so every batch —
 //! verification included — has fresh simulation seeds; without it the server chooses.
+//!
+//! # Several targets
+//!
+//! With `targets` (each `<experiment>.<metric>`, a measured value and a tolerance) and
+//! `experiments` (templates by name), the plan is simultaneous, by Derringer–Suich
+//! desirability: every stage issues one batch per experiment the targets need, with the same
+//! design, one after the other (each is an ordinary outstanding batch; the finished ones wait in
+//! [`Campaign::pending`]) and decides when the last has finished. Screening fits one linear
+//! model per response (a factor is significant if it is for any response, ranked by its largest
+//! |t|); the path climbs the overall desirability (its gradient under the screening models at
+//! the screening centre; centred on its most desirable point once it peaked, or on the most
+//! desirable point with every response in tolerance as soon as there is one); the response surface fits one quadratic per
+//! response; the optimum maximises the overall desirability; verification accepts only if
+//! every response is within its own tolerance. The one-target form behaves exactly as before.
 mod campaign;
 mod error;
 mod report;
@@ -68,13 +83,14 @@ mod svg;
 
 pub use campaign::{
     CalibratedValue, Campaign, CarryRule, Decision, DrillMetric, DrillingOutcome, HeldFactor,
-    IssuedBatch, LevelSetPoint, Next, OptimumChoice, PathPoint, PathState, ScreeningOutcome,
-    StageKind, StageResult, Status, Summary, SurfaceFitSummary, SurfaceRound, VerificationOutcome,
+    IssuedBatch, LevelSetPoint, Next, OptimumChoice, PathPoint, PathState, ResponseCheck,
+    ResponseEffects, ScreeningOutcome, StageKind, StageResult, Status, Summary, SurfaceFitSummary,
+    SurfaceRound, VerificationOutcome,
 };
 pub use error::CampaignError;
 pub use report::{report_html, report_json, ReportPictures};
 pub use request::{
     relative_error_pct, CampaignRequest, CandidateFactor, DrillingValidation, PathDirectionSetting,
-    PathStartSetting, ScreeningSettings, StageExperiments, SteepestSettings, SurfaceDesign,
-    SurfaceSettings, Tolerance, VerificationSettings,
+    PathStartSetting, ScreeningSettings, StageExperiments, StageTemplate, SteepestSettings,
+    SurfaceDesign, SurfaceSettings, Target, TargetSetting, Tolerance, VerificationSettings,
 };

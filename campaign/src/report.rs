@@ -9,9 +9,9 @@ use repose_doe::Fit;
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
-use crate::campaign::{fmt_num, fmt_p, screening_fit, surface_fit};
-use crate::svg::{contour, esc, normal_quantile, pareto, path_chart, scatter};
-use crate::{relative_error_pct, Campaign, StageKind, StageResult, Status};
+use crate::campaign::{fit_or_reason, fmt_num, fmt_p, screening_fit, surface_fit};
+use crate::svg::{contour, desirability_chart, esc, normal_quantile, pareto, path_chart, scatter};
+use crate::{relative_error_pct, Campaign, IssuedBatch, StageKind, StageResult, Status, Target};
 
 /// Pictures the caller may add (SVG documents, e.g. the `aor` kind's side view of a
 /// verification pile and a drilled hole). They are embedded as `data:` images, so scripts in
@@ -95,21 +95,74 @@ fn fit_json(fit: &Result<Fit, String>) -> Value {
     }
 }
 
+/// The inputs' first line: the experiment, response, target and tolerance (one target), or the
+/// experiments and every target with its tolerance.
+fn inputs_line(r: &crate::CampaignRequest, targets: &[crate::Target]) -> String {
+    let experiment = |e: &repose_api::ExperimentTemplate| {
+        format!(
+            "<b>{}</b>{}",
+            esc(&e.kind),
+            e.preset
+                .as_ref()
+                .map_or(s(""), |p| format!(" (preset {})", esc(p)))
+        )
+    };
+    match (&r.experiment, targets) {
+        (Some(e), [t]) => format!(
+            "Experiment {} · response <b>{}</b> · target <b>{}</b> · tolerance {}",
+            experiment(e),
+            esc(&t.label),
+            fmt_num(t.value),
+            esc(&t.tolerance.describe())
+        ),
+        _ => {
+            let experiments: Vec<String> = r
+                .experiments
+                .iter()
+                .map(|(k, e)| format!("{} = {}", esc(k), experiment(e)))
+                .collect();
+            let each: Vec<String> = targets
+                .iter()
+                .map(|t| {
+                    format!(
+                        "<b>{}</b> = <b>{}</b> (tolerance {})",
+                        esc(&t.label),
+                        fmt_num(t.value),
+                        esc(&t.tolerance.describe())
+                    )
+                })
+                .collect();
+            format!(
+                "Experiments {} · targets {}",
+                experiments.join(", "),
+                each.join(", ")
+            )
+        }
+    }
+}
+
 /// The report as JSON: inputs, status, decisions, per-stage outcomes with the full fits,
 /// the summary and the provenance of every run.
 pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
+    let targets = c.request.targets();
     let mut stages = serde_json::Map::new();
     if let Some(s) = &c.screening {
         let mut v = serde_json::to_value(s).unwrap_or(Value::Null);
-        if let Some(r) = c
-            .batches
-            .iter()
-            .find(|b| b.stage == StageKind::Screening)
-            .and_then(|b| result_for(results, b.index))
-        {
-            if let Ok(fit) = screening_fit(&c.request, r.batch, &r.runs) {
-                v["fit"] = fit_json(&fit);
+        let mut fits = Vec::new();
+        for t in &targets {
+            if let Some((_, r)) = batch_of(c, results, StageKind::Screening, 0, t) {
+                if let Some(fit) = fit_or_reason(screening_fit(&c.request, t, r.batch, &r.runs)) {
+                    fits.push(json!({"response": t.label, "fit": fit_json(&fit)}));
+                }
             }
+        }
+        // One target: `fit`; several: `fits`, one per response.
+        if targets.len() == 1 {
+            if let Some(f) = fits.pop() {
+                v["fit"] = f["fit"].clone();
+            }
+        } else {
+            v["fits"] = Value::Array(fits);
         }
         stages.insert("screening".into(), v);
     }
@@ -122,10 +175,23 @@ pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
     let mut rounds = Vec::new();
     for round in &c.surfaces {
         let mut v = serde_json::to_value(round).unwrap_or(Value::Null);
-        if let Some(r) = surface_batch(c, round.round).and_then(|i| result_for(results, i)) {
-            if let Ok(fit) = surface_fit(&c.request, round, r.batch, &r.runs) {
-                v["fit_full"] = fit_json(&fit);
+        let mut fits = Vec::new();
+        for t in &targets {
+            if let Some((_, r)) = batch_of(c, results, StageKind::ResponseSurface, round.round, t) {
+                if let Some(fit) =
+                    fit_or_reason(surface_fit(&c.request, t, round, r.batch, &r.runs))
+                {
+                    fits.push(json!({"response": t.label, "fit": fit_json(&fit)}));
+                }
             }
+        }
+        // One target: `fit_full`; several: `fits_full`, one per response.
+        if targets.len() == 1 {
+            if let Some(f) = fits.pop() {
+                v["fit_full"] = f["fit"].clone();
+            }
+        } else {
+            v["fits_full"] = Value::Array(fits);
         }
         rounds.push(v);
     }
@@ -163,11 +229,42 @@ pub fn report_json(c: &Campaign, results: &[StageResult]) -> Value {
     })
 }
 
-fn surface_batch(c: &Campaign, round: u32) -> Option<usize> {
+/// The batch of `stage` in `round` that ran target `t`'s experiment, with its result.
+fn batch_of<'a>(
+    c: &'a Campaign,
+    results: &'a [StageResult],
+    stage: StageKind,
+    round: u32,
+    t: &Target,
+) -> Option<(&'a IssuedBatch, &'a StageResult)> {
     c.batches
         .iter()
-        .find(|b| b.stage == StageKind::ResponseSurface && b.round == round)
-        .map(|b| b.index)
+        .find(|b| b.stage == stage && b.round == round && b.experiment == t.experiment)
+        .and_then(|b| result_for(results, b.index).map(|res| (b, res)))
+}
+
+/// The validation's measured metrics next to the simulation at the calibrated parameters (the
+/// paper's Table 8).
+fn validation_table(o: &mut String, d: &crate::DrillingOutcome) {
+    let rows: Vec<Vec<String>> = d
+        .metrics
+        .iter()
+        .map(|m| {
+            vec![
+                esc(&m.name),
+                fmt_num(m.measured),
+                m.simulated.map_or(s("—"), fmt_num),
+                m.relative_error_pct.map_or(s("—"), fmt_num),
+                s(if m.within_tolerance { "ok" } else { "outside" }),
+            ]
+        })
+        .collect();
+    table(
+        o,
+        &["metric", "measured", "simulated", "rel. error %", ""].map(s),
+        &rows,
+        1,
+    );
 }
 
 const CSS: &str = "body{font-family:system-ui,sans-serif;margin:24px auto;max-width:1120px;color:#222;line-height:1.4}\
@@ -376,6 +473,20 @@ fn picture(out: &mut String, title: &str, svg_doc: &Option<String>) {
 /// The report as one self-contained HTML page.
 pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictures) -> String {
     let r = &c.request;
+    let targets = r.targets();
+    let t0 = &targets[0];
+    let multi = targets.len() > 1;
+    // With several targets, each response's tables and fits sit under its own heading.
+    let heading = |o: &mut String, t: &Target| {
+        if multi {
+            let _ = write!(
+                o,
+                "<h3>{} (target {})</h3>",
+                esc(&t.label),
+                fmt_num(t.value)
+            );
+        }
+    };
     let mut o = String::new();
     let _ = write!(
         o,
@@ -419,7 +530,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         table(&mut o, &["factor", "path", "value", ""].map(s), &rows, 2);
         let _ = write!(
             o,
-            "<p>Target {} · predicted {} · verified mean {} · relative error {} % · <span class=\"{}\">{}</span> ({} response-surface round(s))</p></div>",
+            "<p>Target {} · predicted {} · verified mean {} · relative error {} % · <span class=\"{}\">{}</span> ({} response-surface round(s))</p>",
             fmt_num(sum.target),
             fmt_num(sum.predicted),
             fmt_num(sum.verified_mean),
@@ -428,20 +539,55 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
             if sum.within_tolerance { "within tolerance" } else { "outside tolerance" },
             sum.surface_rounds
         );
+        if !sum.targets.is_empty() {
+            let rows: Vec<Vec<String>> = sum
+                .targets
+                .iter()
+                .map(|t| {
+                    vec![
+                        esc(&t.response),
+                        fmt_num(t.target),
+                        fmt_num(t.predicted),
+                        fmt_num(t.mean),
+                        fmt_num(t.relative_error_pct),
+                        s(if t.within_tolerance { "ok" } else { "outside" }),
+                    ]
+                })
+                .collect();
+            table(
+                &mut o,
+                &[
+                    "response",
+                    "target",
+                    "predicted",
+                    "verified mean",
+                    "rel. error %",
+                    "",
+                ]
+                .map(s),
+                &rows,
+                1,
+            );
+            if let Some(opt) = c.surfaces.last().and_then(|r| r.optimum.as_ref()) {
+                let _ = write!(
+                    o,
+                    "<p>Overall desirability at the optimum (predicted): {}.</p>",
+                    fmt_num(opt.desirability)
+                );
+            }
+        }
+        if let Some(d) = &sum.drilling {
+            o.push_str(
+                "<h3>Validation (not a target): predicted at the optimum against measured</h3>",
+            );
+            validation_table(&mut o, d);
+        }
+        o.push_str("</div>");
     }
 
     // Inputs.
     o.push_str("<h2>Inputs</h2>");
-    let _ = write!(
-        o,
-        "<p>Experiment <b>{}</b>{} · response <b>{}</b> · target <b>{}</b> · tolerance {} · α = {}</p>",
-        esc(&r.experiment.kind),
-        r.experiment.preset.as_ref().map_or(s(""), |p| format!(" (preset {})", esc(p))),
-        esc(&r.response),
-        fmt_num(r.target),
-        esc(&r.tolerance.describe()),
-        r.alpha
-    );
+    let _ = write!(o, "<p>{} · α = {}</p>", inputs_line(r, &targets), r.alpha);
     let rows: Vec<Vec<String>> = r
         .factors
         .iter()
@@ -489,25 +635,25 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
     o.push_str("</ol>");
 
     // Stage 1.
-    if let (Some(sc), Some(b)) = (
-        &c.screening,
-        c.batches.iter().find(|b| b.stage == StageKind::Screening),
-    ) {
+    if let Some(sc) = &c.screening {
         o.push_str("<h2>1. Screening</h2>");
-        if let Some(res) = result_for(results, b.index) {
-            design_table(&mut o, &b.request, &res.runs, None);
-            if let Ok(Ok(fit)) = screening_fit(r, res.batch, &res.runs) {
-                anova_table(&mut o, &fit, r.alpha);
+        for (i, t) in targets.iter().enumerate() {
+            heading(&mut o, t);
+            if let Some((b, res)) = batch_of(c, results, StageKind::Screening, 0, t) {
+                design_table(&mut o, &b.request, &res.runs, None);
+                if let Ok(fit) = screening_fit(r, t, res.batch, &res.runs) {
+                    anova_table(&mut o, &fit, r.alpha);
+                }
             }
+            let (t_values, t_critical) = match sc.responses.get(i) {
+                Some(e) => (&e.t_values, e.t_critical),
+                None => (&sc.t_values, sc.t_critical),
+            };
+            let abs_t: Vec<f64> = t_values.iter().map(|t| t.map_or(0.0, f64::abs)).collect();
+            o.push_str("<div class=\"figs\">");
+            o.push_str(&pareto(&sc.factors, &abs_t, t_critical));
+            o.push_str("</div>");
         }
-        let abs_t: Vec<f64> = sc
-            .t_values
-            .iter()
-            .map(|t| t.map_or(0.0, f64::abs))
-            .collect();
-        o.push_str("<div class=\"figs\">");
-        o.push_str(&pareto(&sc.factors, &abs_t, sc.t_critical));
-        o.push_str("</div>");
         let held: Vec<String> = sc
             .held
             .iter()
@@ -530,7 +676,13 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         o.push_str("<h2>2. Steepest path</h2>");
         let mut header = vec![s("step")];
         header.extend(p.factors.iter().cloned());
-        header.extend(["predicted", "simulated", "rel. error %", "runs"].map(s));
+        if multi {
+            header.push(format!("predicted {}", t0.label));
+            header.extend(targets.iter().map(|t| t.label.clone()));
+            header.extend(["overall desirability", "runs"].map(s));
+        } else {
+            header.extend(["predicted", "simulated", "rel. error %", "runs"].map(s));
+        }
         let rows: Vec<Vec<String>> = p
             .points
             .iter()
@@ -543,13 +695,22 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                 }];
                 row.extend(pt.natural.iter().map(|v| fmt_num(*v)));
                 row.push(fmt_num(pt.predicted));
+                if multi {
+                    let not_run = s(if i < p.dispatched { "—" } else { "not run" });
+                    for k in 0..targets.len() {
+                        row.push(pt.responses.get(k).map_or(not_run.clone(), |y| fmt_num(*y)));
+                    }
+                    row.push(pt.desirability.map_or(s(""), fmt_num));
+                    row.push(pt.runs.to_string());
+                    return row;
+                }
                 row.push(
                     pt.response
                         .map_or(s(if i < p.dispatched { "—" } else { "not run" }), fmt_num),
                 );
                 row.push(
                     pt.response
-                        .map_or(s(""), |y| fmt_num(relative_error_pct(y, r.target))),
+                        .map_or(s(""), |y| fmt_num(relative_error_pct(y, t0.value))),
                 );
                 row.push(pt.runs.to_string());
                 row
@@ -578,7 +739,15 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
             .collect();
         let pr: Vec<f64> = p.points.iter().map(|pt| pt.predicted).collect();
         o.push_str("<div class=\"figs\">");
-        o.push_str(&path_chart(&xs, &ys, &pr, r.target));
+        o.push_str(&path_chart(&xs, &ys, &pr, t0.value));
+        if multi {
+            let d: Vec<f64> = p
+                .points
+                .iter()
+                .map(|pt| pt.desirability.unwrap_or(f64::NAN))
+                .collect();
+            o.push_str(&desirability_chart(&xs, &d));
+        }
         o.push_str("</div>");
     }
 
@@ -599,53 +768,76 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
             .map(|f| format!("{} {}..{}", esc(&f.name), fmt_num(f.low), fmt_num(f.high)))
             .collect();
         let _ = write!(o, "<p>Levels: {}.</p>", levels.join(", "));
-        let batch = surface_batch(c, round.round).map(|i| &c.batches[i]);
-        let res = batch.and_then(|b| result_for(results, b.index));
-        let fit = match (batch, res) {
-            (Some(b), Some(res)) => {
-                design_table(&mut o, &b.request, &res.runs, None);
-                surface_fit(r, round, res.batch, &res.runs)
-                    .ok()
-                    .and_then(Result::ok)
+        for t in &targets {
+            heading(&mut o, t);
+            let fit = batch_of(c, results, StageKind::ResponseSurface, round.round, t).and_then(
+                |(b, res)| {
+                    design_table(&mut o, &b.request, &res.runs, None);
+                    surface_fit(r, t, round, res.batch, &res.runs).ok()
+                },
+            );
+            if let Some(fit) = &fit {
+                anova_table(&mut o, fit, r.alpha);
             }
-            _ => None,
-        };
-        if let Some(fit) = &fit {
-            anova_table(&mut o, fit, r.alpha);
-        }
-        if let (Some(fit), Some(opt)) = (&fit, &round.optimum) {
-            o.push_str("<h3>Contour plots</h3><p><small>Other factors at the optimum.</small></p><div class=\"figs\">");
-            let k = round.factors.len();
-            for i in 0..k {
-                for j in i + 1..k {
-                    let (fi, fj) = (&round.factors[i], &round.factors[j]);
-                    let z = |x: f64, y: f64| {
-                        let mut c = opt.coded.clone();
-                        c[i] = (x - fi.centre()) / fi.half_range();
-                        c[j] = (y - fj.centre()) / fj.half_range();
-                        fit.predict(&c)
-                    };
-                    o.push_str(&contour(
-                        &format!("{} over {} × {}", fit.response(), fi.name, fj.name),
-                        &fi.name,
-                        &fj.name,
-                        (fi.low, fi.high),
-                        (fj.low, fj.high),
-                        &z,
-                        r.target,
-                        &[(opt.natural[i], opt.natural[j], "optimum")],
-                    ));
+            if let (Some(fit), Some(opt)) = (&fit, &round.optimum) {
+                o.push_str("<h3>Contour plots</h3><p><small>Other factors at the optimum.</small></p><div class=\"figs\">");
+                let k = round.factors.len();
+                for i in 0..k {
+                    for j in i + 1..k {
+                        let (fi, fj) = (&round.factors[i], &round.factors[j]);
+                        let z = |x: f64, y: f64| {
+                            let mut c = opt.coded.clone();
+                            c[i] = (x - fi.centre()) / fi.half_range();
+                            c[j] = (y - fj.centre()) / fj.half_range();
+                            fit.predict(&c)
+                        };
+                        o.push_str(&contour(
+                            &format!("{} over {} × {}", fit.response(), fi.name, fj.name),
+                            &fi.name,
+                            &fj.name,
+                            (fi.low, fi.high),
+                            (fj.low, fj.high),
+                            &z,
+                            t.value,
+                            &[(opt.natural[i], opt.natural[j], "optimum")],
+                        ));
+                    }
                 }
+                o.push_str("</div><h3>Residual diagnostics</h3>");
+                diagnostics(&mut o, fit);
             }
-            o.push_str("</div><h3>Residual diagnostics</h3>");
-            diagnostics(&mut o, fit);
         }
         if let Some(opt) = &round.optimum {
             o.push_str("<h2>4. Optimum</h2>");
             let _ = write!(o, "<p>{}</p>", esc(&opt.note));
+            if multi {
+                let each: Vec<String> = targets
+                    .iter()
+                    .zip(&opt.predictions)
+                    .map(|(t, p)| {
+                        format!(
+                            "{} {} (target {})",
+                            esc(&t.label),
+                            fmt_num(*p),
+                            fmt_num(t.value)
+                        )
+                    })
+                    .collect();
+                let _ = write!(
+                    o,
+                    "<p>Overall desirability {} at the chosen setting; predicted {}.</p>",
+                    fmt_num(opt.desirability),
+                    each.join(", ")
+                );
+            }
             let mut header = vec![s("#")];
             header.extend(round.factors.iter().map(|f| f.name.clone()));
-            header.extend(["predicted", "desirability"].map(s));
+            if multi {
+                header.extend(targets.iter().map(|t| format!("predicted {}", t.label)));
+                header.push(s("overall desirability"));
+            } else {
+                header.extend(["predicted", "desirability"].map(s));
+            }
             let rows: Vec<Vec<String>> = opt
                 .solutions
                 .iter()
@@ -657,7 +849,11 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                         (i + 1).to_string()
                     }];
                     row.extend(sol.natural.iter().map(|v| fmt_num(*v)));
-                    row.push(fmt_num(sol.predicted));
+                    if multi {
+                        row.extend(sol.predictions.iter().map(|v| fmt_num(*v)));
+                    } else {
+                        row.push(fmt_num(sol.predicted));
+                    }
                     row.push(fmt_num(sol.desirability));
                     row
                 })
@@ -702,13 +898,37 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                 point.join(", "),
                 fmt_num(v.predicted)
             );
+            if multi {
+                for (t, check) in targets.iter().zip(&v.checks) {
+                    heading(&mut o, t);
+                    if let Some((b, res)) =
+                        batch_of(c, results, StageKind::Verification, v.round, t)
+                    {
+                        design_table(&mut o, &b.request, &res.runs, Some(t.value));
+                    }
+                    let _ = write!(
+                        o,
+                        "<p>Predicted {} · mean {} (sd {}, n = {}) · target {} · relative error {} % · <span class=\"{}\">{}</span> (tolerance {}).</p>",
+                        fmt_num(check.predicted),
+                        fmt_num(check.mean),
+                        fmt_num(check.std),
+                        check.responses.len(),
+                        fmt_num(check.target),
+                        fmt_num(check.relative_error_pct),
+                        if check.within_tolerance { "ok" } else { "bad" },
+                        if check.within_tolerance { "within tolerance" } else { "outside tolerance" },
+                        esc(&t.tolerance.describe())
+                    );
+                }
+                continue;
+            }
             if let Some((b, res)) = c
                 .batches
                 .iter()
                 .find(|b| b.stage == StageKind::Verification && b.round == v.round)
                 .and_then(|b| result_for(results, b.index).map(|res| (b, res)))
             {
-                design_table(&mut o, &b.request, &res.runs, Some(r.target));
+                design_table(&mut o, &b.request, &res.runs, Some(t0.value));
             }
             let _ = write!(
                 o,
@@ -716,11 +936,11 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                 fmt_num(v.mean),
                 fmt_num(v.std),
                 v.responses.len(),
-                fmt_num(r.target),
+                fmt_num(t0.value),
                 fmt_num(v.relative_error_pct),
                 if v.within_tolerance { "ok" } else { "bad" },
                 if v.within_tolerance { "within tolerance" } else { "outside tolerance" },
-                esc(&r.tolerance.describe())
+                esc(&t0.tolerance.describe())
             );
         }
     }
@@ -730,27 +950,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
     if r.drilling.is_some() {
         o.push_str("<h2>6. Drilling validation</h2>");
         match &c.drilling {
-            Some(d) => {
-                let rows: Vec<Vec<String>> = d
-                    .metrics
-                    .iter()
-                    .map(|m| {
-                        vec![
-                            esc(&m.name),
-                            fmt_num(m.measured),
-                            m.simulated.map_or(s("—"), fmt_num),
-                            m.relative_error_pct.map_or(s("—"), fmt_num),
-                            s(if m.within_tolerance { "ok" } else { "outside" }),
-                        ]
-                    })
-                    .collect();
-                table(
-                    &mut o,
-                    &["metric", "measured", "simulated", "rel. error %", ""].map(s),
-                    &rows,
-                    1,
-                );
-            }
+            Some(d) => validation_table(&mut o, d),
             None => o.push_str("<p>Not run yet.</p>"),
         }
         picture(&mut o, "Drilled hole", &pictures.drilled_hole);

@@ -7,16 +7,31 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::CampaignError;
 
-/// One calibration campaign: the experiment, the candidate parameters, the measured target and
-/// how each stage is run. Every stage setting has a default; the smallest request names the
-/// experiment, the factors and the target.
+/// One calibration campaign: the experiment(s), the candidate parameters, the measured
+/// target(s) and how each stage is run. Every stage setting has a default; the smallest request
+/// names the experiment, the factors and the target.
+///
+/// Two forms, told apart by `targets`:
+/// - **one target** (the original form): `experiment`, `response` (a metric of it), `target`,
+///   `tolerance`, optionally `stage_experiments`;
+/// - **several targets**: `experiments` (templates by name) and `targets`, each
+///   `{"response": "<experiment>.<metric>", "target": value, "tolerance": ...}`; `experiment`,
+///   `response`, `target`, `tolerance` and `stage_experiments` are then not given.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CampaignRequest {
     /// Label; every batch of the campaign is named `<name>: <stage>`.
     pub name: String,
-    /// The simulation every run starts from (e.g. kind `aor`, preset `fast`).
-    pub experiment: ExperimentTemplate,
+    /// The simulation every run starts from (e.g. kind `aor`, preset `fast`); one-target form.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub experiment: Option<ExperimentTemplate>,
+    /// Several-targets form: the experiments by name (by convention the kind, e.g. `aor`,
+    /// `shear`); a target's response `aor.angle_deg` is metric `angle_deg` of `experiments.aor`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub experiments: BTreeMap<String, ExperimentTemplate>,
+    /// Several-targets form: every measured response with its tolerance.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub targets: Vec<TargetSetting>,
     /// Optional per-stage replacements of `experiment` (e.g. a cheaper preset for screening, a
     /// finer one for verification). The replay test uses them to give each of the paper's
     /// tables its own lookup experiment.
@@ -27,8 +42,9 @@ pub struct CampaignRequest {
     /// Metric the campaign calibrates (default `angle_deg`).
     #[serde(default = "default_response")]
     pub response: String,
-    /// Measured value of the response (e.g. 34.85°).
-    pub target: f64,
+    /// Measured value of the response (e.g. 34.85°); one-target form.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<f64>,
     /// How close a verified mean must come to the target (default 5 % relative).
     #[serde(default)]
     pub tolerance: Tolerance,
@@ -52,10 +68,40 @@ pub struct CampaignRequest {
     /// Stage 5.
     #[serde(default)]
     pub verification: VerificationSettings,
-    /// Optional stage 6: a drilling simulation at the calibrated parameters against measured
-    /// hole metrics.
-    #[serde(default)]
+    /// Optional stage 6: a validation experiment that is not a target (the drilling test) at
+    /// the calibrated parameters against its measured metrics. `validation` is accepted as
+    /// another name for it.
+    #[serde(default, alias = "validation")]
     pub drilling: Option<DrillingValidation>,
+}
+
+/// One measured response of the several-targets form.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetSetting {
+    /// `<experiment>.<metric>`, e.g. `aor.angle_deg` or `shear.cohesion_kpa`.
+    pub response: String,
+    /// Measured value.
+    pub target: f64,
+    /// How close the verified mean must come (default 5 % relative).
+    #[serde(default)]
+    pub tolerance: Tolerance,
+}
+
+/// A target as the stages use it, whichever form the request had.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Target {
+    /// Name in decisions and the report (`angle_deg` in the one-target form, `aor.angle_deg`
+    /// in the other).
+    pub label: String,
+    /// Experiment key (empty in the one-target form: `experiment` and `stage_experiments`).
+    pub experiment: String,
+    /// Metric of the experiment's runs.
+    pub metric: String,
+    /// Measured value.
+    pub value: f64,
+    /// Acceptance band of the verified mean.
+    pub tolerance: Tolerance,
 }
 
 fn default_response() -> String {
@@ -342,6 +388,71 @@ fn default_one() -> u32 {
 }
 
 impl CampaignRequest {
+    /// The targets in request order (one in the one-target form). Call after [`Self::validate`].
+    pub fn targets(&self) -> Vec<Target> {
+        if self.targets.is_empty() {
+            return vec![Target {
+                label: self.response.clone(),
+                experiment: String::new(),
+                metric: self.response.clone(),
+                value: self.target.unwrap_or(f64::NAN),
+                tolerance: self.tolerance,
+            }];
+        }
+        self.targets
+            .iter()
+            .map(|t| {
+                let (experiment, metric) = t.response.split_once('.').unwrap_or(("", ""));
+                Target {
+                    label: t.response.clone(),
+                    experiment: experiment.to_owned(),
+                    metric: metric.to_owned(),
+                    value: t.target,
+                    tolerance: t.tolerance,
+                }
+            })
+            .collect()
+    }
+
+    /// Whether the request has several targets (the several-targets form).
+    pub fn is_multi(&self) -> bool {
+        !self.targets.is_empty()
+    }
+
+    /// The experiments the targets need, each once, in order of first use: every stage runs
+    /// each of them at each design point (one batch per experiment).
+    pub fn experiment_keys(&self) -> Vec<String> {
+        let mut keys: Vec<String> = Vec::new();
+        for t in self.targets() {
+            if !keys.contains(&t.experiment) {
+                keys.push(t.experiment);
+            }
+        }
+        keys
+    }
+
+    /// The template a stage's batch of experiment `key` starts from: in the one-target form
+    /// the stage's entry of `stage_experiments` or `experiment`, else `experiments[key]`.
+    pub fn template_for(&self, stage: StageTemplate, key: &str) -> ExperimentTemplate {
+        if !self.is_multi() {
+            let s = &self.stage_experiments;
+            let specific = match stage {
+                StageTemplate::Screening => s.screening.as_ref(),
+                StageTemplate::Steepest => s.steepest.as_ref(),
+                StageTemplate::ResponseSurface => s.response_surface.as_ref(),
+                StageTemplate::Verification => s.verification.as_ref(),
+            };
+            return specific
+                .or(self.experiment.as_ref())
+                .cloned()
+                .expect("validated: the one-target form has an experiment");
+        }
+        self.experiments
+            .get(key)
+            .cloned()
+            .expect("validated: every target's experiment is listed")
+    }
+
     /// Checks what the statistics cannot check later, naming the offending field.
     pub fn validate(&self) -> Result<(), CampaignError> {
         let bad = |field: &str, reason: String| CampaignError::InvalidRequest {
@@ -388,29 +499,12 @@ impl CampaignRequest {
                 }
             }
         }
-        if !self.target.is_finite() || self.target == 0.0 {
-            return Err(bad(
-                "target",
-                format!(
-                    "must be a finite non-zero number (relative errors divide by it), got {}",
-                    self.target
-                ),
-            ));
-        }
-        match self.tolerance {
-            Tolerance::RelativePct(v) | Tolerance::Absolute(v) if !(v.is_finite() && v > 0.0) => {
-                return Err(bad("tolerance", format!("must be positive, got {v}")));
-            }
-            _ => {}
-        }
+        self.validate_targets()?;
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             return Err(bad(
                 "alpha",
                 format!("must be in (0, 1), got {}", self.alpha),
             ));
-        }
-        if self.response.trim().is_empty() {
-            return Err(bad("response", "must not be empty".into()));
         }
         let s = &self.screening;
         if s.replicates == 0 {
@@ -517,4 +611,133 @@ impl CampaignRequest {
         }
         Ok(())
     }
+
+    /// The target fields of either form.
+    fn validate_targets(&self) -> Result<(), CampaignError> {
+        let bad = |field: &str, reason: String| CampaignError::InvalidRequest {
+            field: field.to_owned(),
+            reason,
+        };
+        let check_value = |field: &str, v: f64| {
+            if !v.is_finite() || v == 0.0 {
+                return Err(bad(
+                    field,
+                    format!(
+                        "must be a finite non-zero number (relative errors divide by it), got {v}"
+                    ),
+                ));
+            }
+            Ok(())
+        };
+        let check_tolerance = |field: &str, t: Tolerance| match t {
+            Tolerance::RelativePct(v) | Tolerance::Absolute(v) if !(v.is_finite() && v > 0.0) => {
+                Err(bad(field, format!("must be positive, got {v}")))
+            }
+            _ => Ok(()),
+        };
+        if !self.is_multi() {
+            if self.experiment.is_none() {
+                return Err(bad(
+                    "experiment",
+                    "is needed (or `experiments` and `targets` for several targets)".into(),
+                ));
+            }
+            if !self.experiments.is_empty() {
+                return Err(bad(
+                    "experiments",
+                    "goes with `targets`; a one-target request names `experiment`".into(),
+                ));
+            }
+            let Some(target) = self.target else {
+                return Err(bad("target", "is needed (the measured value)".into()));
+            };
+            check_value("target", target)?;
+            check_tolerance("tolerance", self.tolerance)?;
+            if self.response.trim().is_empty() {
+                return Err(bad("response", "must not be empty".into()));
+            }
+            return Ok(());
+        }
+        for (field, given) in [
+            ("experiment", self.experiment.is_some()),
+            ("target", self.target.is_some()),
+            (
+                "stage_experiments",
+                self.stage_experiments != StageExperiments::default(),
+            ),
+            ("tolerance", self.tolerance != Tolerance::default()),
+            ("response", self.response != default_response()),
+        ] {
+            if given {
+                return Err(bad(
+                    field,
+                    "belongs to the one-target form; with `targets`, each target has its own \
+                     response and tolerance and `experiments` names the experiments"
+                        .into(),
+                ));
+            }
+        }
+        if self.steepest.direction != PathDirectionSetting::Auto {
+            return Err(bad(
+                "steepest.direction",
+                "with several targets the path always climbs the overall desirability; leave \
+                 it `auto`"
+                    .into(),
+            ));
+        }
+        for (i, t) in self.targets.iter().enumerate() {
+            let field = format!("targets[{i}]");
+            let Some((key, metric)) = t.response.split_once('.') else {
+                return Err(bad(
+                    &format!("{field}.response"),
+                    format!("`{}` is not `<experiment>.<metric>`", t.response),
+                ));
+            };
+            if metric.is_empty() {
+                return Err(bad(
+                    &format!("{field}.response"),
+                    format!("`{}` names no metric", t.response),
+                ));
+            }
+            if !self.experiments.contains_key(key) {
+                return Err(bad(
+                    &format!("{field}.response"),
+                    format!("experiment `{key}` is not in `experiments`"),
+                ));
+            }
+            if self.targets[..i].iter().any(|u| u.response == t.response) {
+                return Err(bad(
+                    &format!("{field}.response"),
+                    format!("`{}` is listed twice", t.response),
+                ));
+            }
+            check_value(&format!("{field}.target"), t.target)?;
+            check_tolerance(&format!("{field}.tolerance"), t.tolerance)?;
+        }
+        if let Some(key) = self.experiments.keys().find(|k| {
+            !self
+                .targets
+                .iter()
+                .any(|t| t.response.split_once('.').map(|p| p.0) == Some(k.as_str()))
+        }) {
+            return Err(bad(
+                &format!("experiments.{key}"),
+                "no target uses it".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Which stage's template [`CampaignRequest::template_for`] gives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StageTemplate {
+    /// Stage 1.
+    Screening,
+    /// Stage 2.
+    Steepest,
+    /// Stages 3 and 4.
+    ResponseSurface,
+    /// Stage 5.
+    Verification,
 }

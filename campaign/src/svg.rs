@@ -297,6 +297,27 @@ pub(crate) fn path_chart(
     f.finish()
 }
 
+/// Several targets: the overall desirability measured at each path step (1 = every target met).
+pub(crate) fn desirability_chart(steps: &[f64], desirability: &[f64]) -> String {
+    let mut f = Frame::new(
+        "Steepest path: overall desirability per step",
+        "step",
+        "overall desirability",
+        widen(range(steps.iter().copied()), 0.05),
+        (0.0, 1.05),
+    );
+    let pts: Vec<(f64, f64)> = steps
+        .iter()
+        .copied()
+        .zip(desirability.iter().copied())
+        .filter(|(_, d)| d.is_finite())
+        .collect();
+    f.polyline(&pts, "#2980b9", false);
+    f.points(&pts, "#2980b9");
+    f.hline(1.0, "#c0392b", "every target met");
+    f.finish()
+}
+
 /// Scatter plot; `diagonal` draws y = x, `zero` draws y = 0.
 pub(crate) fn scatter(
     title: &str,

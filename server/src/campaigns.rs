@@ -5,7 +5,7 @@
 
 use repose_api::{BatchState, RunView};
 use repose_campaign::{
-    Campaign, CampaignRequest, Next, ReportPictures, StageKind, StageResult, Status,
+    Campaign, CampaignRequest, Next, ReportPictures, StageKind, StageResult, StageTemplate, Status,
 };
 use uuid::Uuid;
 
@@ -43,6 +43,20 @@ pub async fn create(
     let name = request.name.clone();
     let (campaign, first) = tokio::task::spawn_blocking(move || {
         let (campaign, first) = Campaign::start(request).map_err(campaign_error)?;
+        // With several experiments only the first one's batch is submitted now; the others'
+        // screening batches (the same design on their own templates) are checked here too, so
+        // an unknown kind or a bad spec is refused before anything runs.
+        let r = &campaign.request;
+        for key in r.experiment_keys().iter().skip(1) {
+            let mut other = first.clone();
+            other.experiment = r.template_for(StageTemplate::Screening, key);
+            submit::plan_batch(other, 0).map_err(|err| {
+                prefix_field(
+                    err,
+                    &format!("campaign's screening batch of experiment `{key}`"),
+                )
+            })?;
+        }
         let plan = submit::plan_batch(first, Uuid::new_v4().as_u64_pair().0)
             .map_err(|err| prefix_field(err, "campaign's screening batch"))?;
         Ok::<_, AppError>((campaign, plan))

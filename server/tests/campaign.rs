@@ -204,3 +204,134 @@ async fn a_bad_campaign_is_a_422_naming_the_field_and_unknown_ids_are_404() {
     assert_eq!(status, StatusCode::BAD_REQUEST);
     server.stop().await;
 }
+
+/// A two-target campaign (issue 15) on two `table_lookup` experiments whose tables hold only a
+/// placeholder row: the test worker answers every run from the formulas
+/// `angle_deg = 30 + 8·A + 4·B` and `cohesion_kpa = 1 + 3·B` (plus a fixed deviation per point
+/// and seed), so both targets (34 and 2.5) hold together only at A = 0.25, B = 0.5.
+fn two_target_answer(job: &ClaimResponse) -> Completion {
+    let v = &job.spec["values"];
+    let (a, b, c) = (
+        v["A"].as_f64().unwrap(),
+        v["B"].as_f64().unwrap(),
+        v["C"].as_f64().unwrap(),
+    );
+    let dev = (((a * 1000.0).round() * 1.7
+        + (b * 1000.0).round() * 2.7
+        + (c * 1000.0).round() * 3.7
+        + (job.seed % 3) as f64 * 3.1)
+        * 12.9898)
+        .sin();
+    Completion {
+        lease_token: job.lease_token,
+        metrics: [
+            (
+                "angle_deg".to_owned(),
+                30.0 + 8.0 * a + 4.0 * b + 0.05 * dev,
+            ),
+            ("cohesion_kpa".to_owned(), 1.0 + 3.0 * b + 0.01 * dev),
+        ]
+        .into(),
+        wall_time_s: 0.0,
+        details: json!({"worker": "test formulas"}),
+        engine_version: Some("replay-engine-0".into()),
+        pictures: Default::default(),
+    }
+}
+
+async fn work_with(
+    server: &TestServer,
+    idle_s: f64,
+    max_jobs: usize,
+    answer: fn(&ClaimResponse) -> Completion,
+) -> usize {
+    let worker = server.register().await;
+    let mut done = 0;
+    while done < max_jobs {
+        let Some(job) = server.claim(worker, idle_s).await else {
+            break;
+        };
+        let (status, body) = server
+            .post(
+                &format!("/v1/jobs/{}/complete", job.job_id),
+                &serde_json::to_value(answer(&job)).unwrap(),
+            )
+            .await;
+        assert_eq!(status, StatusCode::OK, "{body}");
+        done += 1;
+    }
+    done
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_two_target_campaign_runs_one_batch_per_experiment_and_survives_a_restart_between_them() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let lookup = |metric: &str| {
+        json!({"kind": "table_lookup", "spec": {
+            "values": {"A": 0.0, "B": 0.0, "C": 0.0},
+            "rows": [{"A": -99.0, "B": -99.0, "C": -99.0, metric: 0.0}]
+        }})
+    };
+    let request = json!({
+        "name": "two targets via the server",
+        "experiments": {"aor": lookup("angle_deg"), "shear": lookup("cohesion_kpa")},
+        "targets": [
+            {"response": "aor.angle_deg", "target": 34.0, "tolerance": {"relative_pct": 2}},
+            {"response": "shear.cohesion_kpa", "target": 2.5, "tolerance": {"relative_pct": 4}}
+        ],
+        "factors": [
+            {"name": "A", "path": "values.A", "low": 0.0, "high": 1.0},
+            {"name": "B", "path": "values.B", "low": 0.0, "high": 1.0},
+            {"name": "C", "path": "values.C", "low": 0.0, "high": 1.0}
+        ],
+        "seed": 15,
+        "screening": {"design": {"type": "plackett_burman", "runs": 8}},
+    });
+    let (status, created) = server.post("/v1/campaigns", &request).await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    let id: Uuid = serde_json::from_value(created["id"].clone()).unwrap();
+
+    // The first experiment's screening batch only, then a restart: the finished batch waits in
+    // the stored campaign while the second experiment's batch runs.
+    assert_eq!(work_with(&server, 5.0, 8, two_target_answer).await, 8);
+    server.stop().await;
+    let server = TestServer::start(&db, |_| {}).await;
+    for _ in 0..30 {
+        work_with(&server, 1.0, usize::MAX, two_target_answer).await;
+        if campaign(&server, id).await["status"] != "running" {
+            break;
+        }
+    }
+    let view = campaign(&server, id).await;
+    assert_eq!(view["status"], "finished", "{view:#}");
+    let batches = view["batch_list"].as_array().unwrap();
+    assert_eq!(batches[0]["stage"], "screening");
+    assert_eq!(batches[1]["stage"], "screening");
+    let result = &view["result"];
+    assert_eq!(result["within_tolerance"], true, "{result:#}");
+    let value = |name: &str| {
+        result["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == name)
+            .unwrap()["value"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!((value("A") - 0.25).abs() < 0.02, "{result:#}");
+    assert!((value("B") - 0.5).abs() < 0.02, "{result:#}");
+    assert_eq!(result["targets"].as_array().unwrap().len(), 2, "{result:#}");
+    let (status, html) = server.get_text(&format!("/v1/campaigns/{id}/report")).await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(html.contains("shear.cohesion_kpa (target 2.5)"));
+
+    // An experiment of a kind the catalog does not have is refused at creation, naming it.
+    let mut unknown = request.clone();
+    unknown["experiments"]["shear"]["kind"] = json!("no_such_kind");
+    let (status, body) = server.post("/v1/campaigns", &unknown).await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(body.to_string().contains("`shear`"), "{body}");
+    server.stop().await;
+}

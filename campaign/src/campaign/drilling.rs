@@ -1,0 +1,123 @@
+//! Stage 6 (optional), the drilling validation: the drilling experiment at the calibrated
+//! parameters, each measured hole metric against the simulated mean ([`compare`]).
+
+use repose_api::{DesignRequest, FactorSpec, ModelName, RunState, RunView};
+use serde::{Deserialize, Serialize};
+
+use super::model::set_path;
+use super::{wording, Campaign, Halt, Next, StageKind, StageResult};
+use crate::error::CampaignError;
+use crate::request::{relative_error_pct, DrillingValidation};
+
+/// One compared drilling metric.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DrillMetric {
+    /// Metric name.
+    pub name: String,
+    /// Measured value.
+    pub measured: f64,
+    /// Mean over the completed runs (None if no run reported it).
+    pub simulated: Option<f64>,
+    /// Relative error, percent.
+    pub relative_error_pct: Option<f64>,
+    /// Within `tolerance_pct`.
+    pub within_tolerance: bool,
+}
+
+/// Stage 6 outcome.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DrillingOutcome {
+    /// Per metric.
+    pub metrics: Vec<DrillMetric>,
+    /// All metrics within tolerance.
+    pub passed: bool,
+}
+
+/// Each measured metric against the mean of the completed runs.
+pub(crate) fn compare(drilling: &DrillingValidation, runs: &[RunView]) -> DrillingOutcome {
+    let mut metrics = Vec::new();
+    for (name, measured) in &drilling.measured {
+        let values: Vec<f64> = runs
+            .iter()
+            .filter(|r| r.status == RunState::Completed)
+            .filter_map(|r| r.metrics.as_ref().and_then(|m| m.get(name)).copied())
+            .filter(|v| v.is_finite())
+            .collect();
+        let simulated =
+            (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+        let err = simulated.map(|s| relative_error_pct(s, *measured));
+        metrics.push(DrillMetric {
+            name: name.clone(),
+            measured: *measured,
+            simulated,
+            relative_error_pct: err,
+            within_tolerance: err.is_some_and(|e| e <= drilling.tolerance_pct),
+        });
+    }
+    let passed = metrics.iter().all(|m| m.within_tolerance);
+    DrillingOutcome { metrics, passed }
+}
+
+impl Campaign {
+    /// Issues the drilling batch at the verified optimum.
+    pub(super) fn start_drilling(&mut self) -> Result<Next, Halt> {
+        let drilling = self.request.drilling.clone().expect("drilling requested");
+        let round = self.surfaces.last().expect("round").clone();
+        let optimum = round.optimum.clone().expect("optimum");
+        let path_of = |name: &str| -> String {
+            drilling.paths.get(name).cloned().unwrap_or_else(|| {
+                self.request
+                    .factors
+                    .iter()
+                    .find(|f| f.name == name)
+                    .map(|f| f.path.clone())
+                    .unwrap_or_default()
+            })
+        };
+        let mut template = drilling.experiment.clone();
+        if let Some(s) = &self.screening {
+            for h in &s.held {
+                set_path(&mut template.spec, &path_of(&h.name), h.value).map_err(|reason| {
+                    CampaignError::InvalidRequest {
+                        field: format!("drilling.paths.{}", h.name),
+                        reason,
+                    }
+                })?;
+            }
+        }
+        let specs: Vec<FactorSpec> = round
+            .factors
+            .iter()
+            .map(|f| FactorSpec {
+                name: f.name.clone(),
+                path: path_of(&f.name),
+                low: f.low,
+                high: f.high,
+            })
+            .collect();
+        self.decide(StageKind::Drilling, wording::drilling_plan(&drilling));
+        Ok(Next::Submit(self.issue(
+            StageKind::Drilling,
+            String::new(),
+            template,
+            specs,
+            DesignRequest::Explicit {
+                points: vec![optimum.natural],
+            },
+            drilling.replicates,
+            ModelName::None,
+            Vec::new(),
+        )))
+    }
+
+    pub(super) fn after_drilling(&mut self, finished: &StageResult) -> Result<Next, Halt> {
+        let drilling = self.request.drilling.as_ref().expect("drilling requested");
+        let outcome = compare(drilling, &finished.runs);
+        self.decide(
+            StageKind::Drilling,
+            wording::drilling(&outcome, self.request.is_multi()),
+        );
+        self.drilling = Some(outcome);
+        Ok(self.finish())
+    }
+}
