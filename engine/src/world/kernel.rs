@@ -46,6 +46,17 @@ pub(super) struct Scratch {
     pub(super) pairs: super::lanes::ChunkPairs,
 }
 
+thread_local! {
+    /// Each thread's reusable buffers. Their contents never outlive one particle's or one
+    /// chunk's use, so results do not depend on which thread ran what.
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// `f` with this thread's scratch buffers (kept across steps: no allocation or zeroing).
+pub(super) fn with_scratch<T>(f: impl FnOnce(&mut Scratch) -> T) -> T {
+    SCRATCH.with_borrow_mut(f)
+}
+
 /// Step-constant inputs of the gather + integrate step.
 pub(super) struct GatherContext {
     pub(super) dt: f64,

@@ -55,7 +55,6 @@ impl World {
         let gather = self.gather_context(after);
         let n = particles.len();
         let use_rolling_spring = !pairs.rolling.is_empty();
-        let mut scratch = Scratch::default();
         let mut all_loads = Vec::with_capacity(n.div_ceil(CHUNK));
         let mut rebuild = false;
         let p = &mut particles;
@@ -82,24 +81,26 @@ impl World {
             } else {
                 &mut []
             };
-            chunk_contacts(
-                &ctx,
-                &reads,
-                &pl.first_pair,
-                ChunkOut {
-                    start: chunk_start,
-                    partner: &mut pl.partner[own.clone()],
-                    tangential: &mut pl.tangential[own.clone()],
-                    rolling,
-                    share: &mut pl.partner_share[own],
-                    walls: &mut p.wall_history[chunk_start..chunk_end],
-                    force: &mut force[..size],
-                    torque: &mut torque[..size],
-                    moment: &mut moment[..size],
-                },
-                &mut scratch,
-                &mut loads,
-            );
+            with_scratch(|scratch| {
+                chunk_contacts(
+                    &ctx,
+                    &reads,
+                    &pl.first_pair,
+                    ChunkOut {
+                        start: chunk_start,
+                        partner: &mut pl.partner[own.clone()],
+                        tangential: &mut pl.tangential[own.clone()],
+                        rolling,
+                        share: &mut pl.partner_share[own],
+                        walls: &mut p.wall_history[chunk_start..chunk_end],
+                        force: &mut force[..size],
+                        torque: &mut torque[..size],
+                        moment: &mut moment[..size],
+                    },
+                    scratch,
+                    &mut loads,
+                )
+            });
             for i in chunk_start..chunk_end {
                 let k = i - chunk_start;
                 let incident = pl.incidence_start[i] as usize..pl.incidence_start[i + 1] as usize;
@@ -222,25 +223,26 @@ impl World {
             .into_par_iter()
             .map(|task| {
                 let mut loads = vec![(Vec3::zeros(), Vec3::zeros()); ctx.geometries.len()];
-                let mut scratch = Scratch::default();
-                chunk_contacts(
-                    &ctx,
-                    &reads,
-                    first_pair,
-                    ChunkOut {
-                        start: task.start,
-                        partner: task.partner,
-                        tangential: task.tangential,
-                        rolling: task.rolling,
-                        share: task.share,
-                        walls: task.walls,
-                        force: task.force,
-                        torque: task.torque,
-                        moment: task.moment,
-                    },
-                    &mut scratch,
-                    &mut loads,
-                );
+                with_scratch(|scratch| {
+                    chunk_contacts(
+                        &ctx,
+                        &reads,
+                        first_pair,
+                        ChunkOut {
+                            start: task.start,
+                            partner: task.partner,
+                            tangential: task.tangential,
+                            rolling: task.rolling,
+                            share: task.share,
+                            walls: task.walls,
+                            force: task.force,
+                            torque: task.torque,
+                            moment: task.moment,
+                        },
+                        scratch,
+                        &mut loads,
+                    )
+                });
                 loads
             })
             .collect();
