@@ -12,7 +12,7 @@ use uuid::Uuid;
 pub mod spec_path;
 pub mod version;
 
-pub use spec_path::{apply_factor_values, SpecPathError};
+pub use spec_path::{apply_factor_values, locate_mut, PathMode, SpecPathError};
 pub use version::{check_worker_version, ReleaseVersion, VersionRefusal};
 
 /// The OpenAPI 3.0 document of the server's HTTP API (`api/openapi.json`, served at
