@@ -54,8 +54,7 @@
 //! The sample is poured and settled **without cohesion**; the cohesion law acts from the
 //! consolidation on. A cohesive pour stands open (at 3e5 J/m³ the fast sample stood 46 mm high
 //! instead of 37 mm), the lid then spends the stage collapsing it, and the strength measured
-//! is that of a different fabric for every cohesion (measured: c fell from 1.6 to 0.9 kPa
-//! between 1.5e5 and 3e5 J/m³ with cohesive pours). One cohesionless pour gives every cohesion
+//! is that of a different fabric for every cohesion. One cohesionless pour gives every cohesion
 //! the same starting fabric, as a lab compacts a moist sample to a set density; it also lets a
 //! batch varying only the cohesion share one cached sample.
 //!
