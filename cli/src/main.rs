@@ -10,6 +10,7 @@ mod design_cmd;
 mod drill_cmd;
 mod levels;
 mod server_cmd;
+mod shear_cmd;
 mod sim;
 mod table;
 mod token_cmd;
@@ -44,6 +45,8 @@ enum Command {
     Aor(aor_cmd::AorArgs),
     /// Drilling (pore-forming) virtual experiment: hole opening diameter, effective depth, torque.
     Drill(drill_cmd::DrillArgs),
+    /// Direct shear virtual experiment: cohesion and friction angle (Mohr-Coulomb) of the soil.
+    Shear(shear_cmd::ShearArgs),
     /// Run the job server (REST API, SQLite) until Ctrl-C or SIGTERM.
     Server(server_cmd::ServerArgs),
     /// Create, list and revoke the job server's access tokens (user and worker).
@@ -88,6 +91,7 @@ fn main() -> ExitCode {
         Command::Backup(args) => backup_cmd::run(&args),
         Command::Aor(args) => aor_cmd::run(&args),
         Command::Drill(args) => drill_cmd::run(&args),
+        Command::Shear(args) => shear_cmd::run(&args),
         Command::Worker(args) => worker_cmd::run_worker(&args),
         Command::Up(args) => up_cmd::run(&args),
         Command::Submit(args) => client::submit(&args),

@@ -216,6 +216,23 @@ impl Motion {
         })
     }
 
+    /// A body at `placement` at time `start` that translates at `velocity` (world frame, m/s)
+    /// from then on, without turning: what a servo-controlled geometry is given at each control
+    /// step ([`World::set_geometry_motion`](crate::world::World::set_geometry_motion)), with
+    /// `placement` the pose the body has reached at `start`, so its path is continuous.
+    pub fn translating(placement: Pose, velocity: Vec3, start: f64) -> Result<Motion, MotionError> {
+        // "From then on": the segment ends at the largest finite time.
+        Motion::new(
+            placement,
+            vec![TranslationSegment {
+                velocity,
+                start,
+                stop: f64::MAX,
+            }],
+            Vec::new(),
+        )
+    }
+
     /// A body that never moves from `placement`.
     pub fn stationary(placement: Pose) -> Motion {
         Motion {

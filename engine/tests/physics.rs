@@ -1096,3 +1096,72 @@ fn an_empty_world_steps() {
         assert_eq!(world.geometry_series(GeometryId(0)).len(), 10);
     }
 }
+
+/// Servo control's engine side: a plate whose motion is replaced mid-run
+/// (`World::set_geometry_motion` with `Motion::translating` from its current pose) moves on from
+/// where it was, carries a grain resting on it, and its load read back
+/// (`World::last_geometry_sample`) is the grain's weight once it stops again.
+#[test]
+fn a_plate_given_a_new_velocity_mid_run_moves_on_from_where_it_was() {
+    let materials = table(ball_material(), wall_material(), 0.5, 0.5, 0.0);
+    let g = 9.81;
+    let c = config(
+        rayleigh_dt(0.2),
+        Vec3::new(0.0, 0.0, -g),
+        Integrator::SymplecticEuler,
+    );
+    let mut world = World::new(materials, c).unwrap();
+    let plate = add_plane(&mut world, 0.1, 4);
+    let delta = resting_overlap(RADIUS, g);
+    world
+        .add_particle(ParticleSpec {
+            position: Vec3::new(0.01, 0.02, RADIUS - delta),
+            velocity: Vec3::zeros(),
+            angular_velocity: Vec3::zeros(),
+            radius: RADIUS,
+            material: BALL,
+        })
+        .unwrap();
+    world.run_until(0.05);
+    let z_rest = world.particles().position[0].z;
+    // Up at 0.1 m/s for 0.1 s, from the pose reached so far (the identity).
+    let speed = 0.1;
+    let t0 = world.time();
+    let pose = world.geometry(plate).motion.pose_at(t0);
+    world.set_geometry_motion(
+        plate,
+        Motion::translating(pose, Vec3::new(0.0, 0.0, speed), t0).unwrap(),
+    );
+    world.run_until(t0 + 0.1);
+    let t1 = world.time();
+    let lifted = world.geometry(plate).motion.pose_at(t1).translation.vector;
+    assert!(
+        (lifted.z - speed * (t1 - t0)).abs() < 1e-12 && lifted.x == 0.0 && lifted.y == 0.0,
+        "the plate is at {lifted:?}"
+    );
+    let z_grain = world.particles().position[0].z;
+    assert!(
+        (z_grain - z_rest - speed * (t1 - t0)).abs() < 0.05 * speed * (t1 - t0),
+        "the grain rose {} m, the plate {} m",
+        z_grain - z_rest,
+        speed * (t1 - t0)
+    );
+    // Stop where it is; the grain comes to rest on it and weighs on it.
+    let pose = world.geometry(plate).motion.pose_at(t1);
+    world.set_geometry_motion(plate, Motion::translating(pose, Vec3::zeros(), t1).unwrap());
+    world.run_until(t1 + 0.2);
+    let stopped = world
+        .geometry(plate)
+        .motion
+        .pose_at(world.time())
+        .translation
+        .vector;
+    assert_eq!(stopped, lifted, "the plate moved after it was stopped");
+    let load = world.last_geometry_sample(plate).unwrap();
+    let weight = mass(RADIUS) * g;
+    assert!(
+        (load.force.z + weight).abs() < 0.01 * weight && load.force.x.abs() < 0.01 * weight,
+        "load {:?}, weight {weight}",
+        load.force
+    );
+}

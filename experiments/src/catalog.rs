@@ -16,10 +16,14 @@ use crate::drill::{
 };
 use crate::progress::Control;
 use crate::replay::{ReplayError, ReplaySpec};
+use crate::shear::{
+    build_sample, run_shear_on_bed, sample_key, ShearError, ShearSpec, ShearStatus,
+};
 
-/// Settled drilling beds kept between runs under their [`bed_key`]: a worker keeps them on
-/// disk so that runs whose bed inputs are equal (e.g. a batch varying only the auger, with
-/// `bed.seed` fixed) do not rebuild the bed every time.
+/// Settled drilling beds (and shear samples, which are drilling beds in the shear box) kept
+/// between runs under their [`bed_key`]: a worker keeps them on disk so that runs whose bed
+/// inputs are equal (e.g. a batch varying only the auger, with `bed.seed` fixed) do not rebuild
+/// the bed every time.
 pub trait BedStore {
     /// The bed stored under `key`, if there is one.
     fn get(&mut self, key: &str) -> Option<SettledBed>;
@@ -45,13 +49,15 @@ pub enum Kind {
     Aor,
     /// The drilling (pore-forming) test (`drill`).
     Drill,
+    /// The direct shear test (`shear`).
+    Shear,
     /// The test aid that answers from a table of known results (`table_lookup`).
     TableLookup,
 }
 
 impl Kind {
     /// Every kind, in the order [`KINDS`] names them.
-    pub const ALL: [Kind; 3] = [Kind::Aor, Kind::Drill, Kind::TableLookup];
+    pub const ALL: [Kind; 4] = [Kind::Aor, Kind::Drill, Kind::Shear, Kind::TableLookup];
 
     /// The kind called `name`.
     pub fn parse(name: &str) -> Result<Kind, ExperimentError> {
@@ -66,6 +72,7 @@ impl Kind {
         match self {
             Kind::Aor => "aor",
             Kind::Drill => "drill",
+            Kind::Shear => "shear",
             Kind::TableLookup => "table_lookup",
         }
     }
@@ -75,6 +82,7 @@ impl Kind {
         match self {
             Kind::Aor => &crate::aor::PRESETS,
             Kind::Drill => &crate::drill::PRESETS,
+            Kind::Shear => &crate::shear::PRESETS,
             Kind::TableLookup => &[],
         }
     }
@@ -94,7 +102,7 @@ impl std::fmt::Display for Kind {
 }
 
 /// Names of the kinds understood by [`run_experiment`] (`Kind::ALL`'s names).
-pub const KINDS: [&str; 3] = ["aor", "drill", "table_lookup"];
+pub const KINDS: [&str; 4] = ["aor", "drill", "shear", "table_lookup"];
 
 /// A spec parsed and checked for its kind: the typed form every entry point works on (parsed
 /// once, like mini-redis's `Command`), then dispatched by `match`.
@@ -102,6 +110,7 @@ pub const KINDS: [&str; 3] = ["aor", "drill", "table_lookup"];
 pub enum ExperimentSpec {
     Aor(AorSpec),
     Drill(DrillSpec),
+    Shear(ShearSpec),
     TableLookup(ReplaySpec),
 }
 
@@ -111,6 +120,7 @@ impl ExperimentSpec {
         Ok(match kind {
             Kind::Aor => ExperimentSpec::Aor(parse_aor(spec)?),
             Kind::Drill => ExperimentSpec::Drill(parse_drill(spec)?),
+            Kind::Shear => ExperimentSpec::Shear(parse_shear(spec)?),
             Kind::TableLookup => ExperimentSpec::TableLookup(parse_replay(spec)?),
         })
     }
@@ -119,6 +129,7 @@ impl ExperimentSpec {
         match self {
             ExperimentSpec::Aor(_) => Kind::Aor,
             ExperimentSpec::Drill(_) => Kind::Drill,
+            ExperimentSpec::Shear(_) => Kind::Shear,
             ExperimentSpec::TableLookup(_) => Kind::TableLookup,
         }
     }
@@ -128,6 +139,7 @@ impl ExperimentSpec {
         match self {
             ExperimentSpec::Aor(s) => serde_json::to_value(s).expect("AorSpec serialises"),
             ExperimentSpec::Drill(s) => serde_json::to_value(s).expect("DrillSpec serialises"),
+            ExperimentSpec::Shear(s) => serde_json::to_value(s).expect("ShearSpec serialises"),
             ExperimentSpec::TableLookup(s) => {
                 serde_json::to_value(s).expect("ReplaySpec serialises")
             }
@@ -232,6 +244,11 @@ pub fn prepare_spec(
             let base = DrillSpec::preset(preset.unwrap_or("default"))
                 .map_err(|_| unknown_preset(kind.presets().join(", ")))?;
             Some(serde_json::to_value(base).expect("DrillSpec serialises"))
+        }
+        Kind::Shear => {
+            let base = ShearSpec::preset(preset.unwrap_or("default"))
+                .map_err(|_| unknown_preset(kind.presets().join(", ")))?;
+            Some(serde_json::to_value(base).expect("ShearSpec serialises"))
         }
         Kind::TableLookup => {
             if preset.is_some() {
@@ -390,6 +407,56 @@ pub fn run_experiment_with_beds(
                 hold_s: 0.0,
             })
         }
+        ExperimentSpec::Shear(mut spec) => {
+            spec.seed = seed;
+            let shear_error = |e: ShearError| match e {
+                ShearError::Cancelled => ExperimentError::Cancelled,
+                other => ExperimentError::InvalidSpec {
+                    path: None,
+                    message: other.to_string(),
+                },
+            };
+            let key = sample_key(&spec);
+            let cached = beds.get(&key).filter(|bed| bed.key == key);
+            let reused = cached.is_some();
+            // Building the sample takes the first fifth of the progress.
+            let bed_share = if reused { 0.0 } else { 0.2 };
+            let bed = match cached {
+                Some(bed) => bed,
+                None => {
+                    let bed = build_sample(&spec, &mut |p| progress(bed_share * p.fraction))
+                        .map_err(shear_error)?;
+                    beds.put(&bed);
+                    bed
+                }
+            };
+            let bed_wall_s = if reused { 0.0 } else { bed.wall_time_s };
+            let mut run = run_shear_on_bed(&spec, bed, &mut |p| {
+                progress(bed_share + (1.0 - bed_share) * p.fraction)
+            })
+            .map_err(shear_error)?;
+            run.result.bed.reused = reused;
+            run.result.wall_time_s += bed_wall_s;
+            let details = serde_json::to_value(&run.result).expect("ShearResult serialises");
+            if run.result.status == ShearStatus::MeasurementFailed {
+                return Err(ExperimentError::NoResult {
+                    message: format!(
+                        "shear test gave no strength: {}",
+                        run.result.message.as_deref().unwrap_or("no fit")
+                    ),
+                    details,
+                });
+            }
+            Ok(Outcome {
+                metrics: run.result.metrics(),
+                details,
+                pictures: vec![
+                    ("shear_curves.svg".to_owned(), run.curves_svg()),
+                    ("mohr_coulomb.svg".to_owned(), run.strength_svg()),
+                ],
+                hold_s: 0.0,
+            })
+        }
         ExperimentSpec::TableLookup(spec) => {
             if progress(0.0) == Control::Cancel {
                 return Err(ExperimentError::Cancelled);
@@ -437,6 +504,22 @@ fn parse_drill(spec: &Value) -> Result<DrillSpec, ExperimentError> {
     spec.validate().map_err(|e| ExperimentError::InvalidSpec {
         path: match &e {
             crate::drill::SpecError::Invalid { path, .. } => Some(path.clone()),
+            _ => None,
+        },
+        message: e.to_string(),
+    })?;
+    Ok(spec)
+}
+
+fn parse_shear(spec: &Value) -> Result<ShearSpec, ExperimentError> {
+    let spec: ShearSpec =
+        serde_json::from_value(spec.clone()).map_err(|e| ExperimentError::InvalidSpec {
+            path: None,
+            message: format!("not a valid shear spec: {e}"),
+        })?;
+    spec.validate().map_err(|e| ExperimentError::InvalidSpec {
+        path: match &e {
+            crate::shear::SpecError::Invalid { path, .. } => Some(path.clone()),
             _ => None,
         },
         message: e.to_string(),
@@ -591,6 +674,34 @@ mod tests {
             }
             other => panic!("unexpected {other:?}"),
         }
+    }
+
+    #[test]
+    fn shear_specs_complete_from_their_preset_and_name_bad_fields() {
+        let spec = prepare_spec(
+            "shear",
+            Some("fast"),
+            &json!({"soil_soil": {"static_friction": 0.5}, "normal_stresses_kpa": [5.0, 10.0]}),
+        )
+        .unwrap();
+        assert_eq!(spec["soil_soil"]["static_friction"], json!(0.5));
+        assert_eq!(spec["normal_stresses_kpa"], json!([5.0, 10.0]));
+        assert_eq!(spec["box"]["side"], json!(0.05), "fast preset kept");
+        let parsed = ExperimentSpec::parse(Kind::Shear, &spec).unwrap();
+        assert_eq!(parsed.kind(), Kind::Shear);
+        assert_eq!(parsed.to_value(), spec);
+        let mut bad = spec.clone();
+        bad["normal_stresses_kpa"] = json!([5.0]);
+        match validate_spec("shear", &bad) {
+            Err(ExperimentError::InvalidSpec { path, .. }) => {
+                assert_eq!(path.as_deref(), Some("normal_stresses_kpa"))
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+        assert!(matches!(
+            prepare_spec("shear", Some("full"), &json!({})),
+            Err(ExperimentError::UnknownPreset { .. })
+        ));
     }
 
     #[test]

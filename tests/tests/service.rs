@@ -69,6 +69,58 @@ fn a_batch_runs_through_two_worker_processes_and_is_analysed() {
     assert!(analysis["fit"].is_object(), "{analysis}");
 }
 
+/// A two-run shear batch, the smallest that still fits a Mohr-Coulomb line per run: the fast
+/// preset (≈ 1 000 grains) at two normal stresses, sheared 3 mm instead of 6 (tens of seconds
+/// a run), at two interparticle frictions.
+fn small_shear_batch() -> Value {
+    json!({
+        "name": "two-worker shear",
+        "experiment": {"kind": "shear", "preset": "fast", "spec": {
+            "normal_stresses_kpa": [4.0, 8.0],
+            "shear": {"displacement": 0.003}
+        }},
+        "factors": [
+            {"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.3, "high": 0.5}
+        ],
+        "design": {"type": "factorial"},
+        "response": "friction_angle_deg",
+        "model": "none",
+        "seed": 7
+    })
+}
+
+/// One batch holds one experiment kind (`BatchRequest.experiment`), so "mixing" is an `aor`
+/// batch and a `shear` batch queued together on one server and run by the same two worker
+/// processes: both are accepted, run and analysed.
+#[test]
+fn an_aor_batch_and_a_shear_batch_run_side_by_side_and_are_analysed() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 60.0);
+    let _a = service.start_worker("worker-a", &[]);
+    let _b = service.start_worker("worker-b", &[]);
+    let aor = service.submit(&small_aor_batch());
+    let shear = service.submit(&small_shear_batch());
+    for batch in [&aor, &shear] {
+        let status = service.wait_finished(batch, Duration::from_secs(900));
+        assert_eq!(status["state"], "completed", "{status}");
+        let analysis = service.get(&format!("/v1/batches/{batch}/analysis"));
+        assert!(analysis["runs_used"].as_u64().unwrap() >= 2, "{analysis}");
+    }
+    let shear_runs = runs(&service, &shear);
+    assert_eq!(shear_runs.len(), 2);
+    for run in &shear_runs {
+        let m = &run["metrics"];
+        let phi = m["friction_angle_deg"].as_f64().unwrap_or(f64::NAN);
+        assert!((5.0..50.0).contains(&phi), "{run}");
+        assert!(m["cohesion_kpa"].as_f64().is_some(), "{run}");
+    }
+    let angles = runs(&service, &aor)
+        .iter()
+        .filter_map(|r| r["metrics"]["angle_deg"].as_f64())
+        .count();
+    assert!(angles >= 3, "at least three heaps measured");
+}
+
 #[test]
 fn a_worker_killed_mid_job_is_re_leased_and_the_run_has_exactly_one_result() {
     let dir = tempfile::tempdir().unwrap();

@@ -411,6 +411,24 @@ impl World {
         &self.geometries[id.0 as usize]
     }
 
+    /// Replaces the prescribed motion of geometry `id` from now on (servo control: a lid held
+    /// at a normal force, a shear box moved at a set speed). The new motion should start at
+    /// the pose the geometry has now (`geometry(id).motion.pose_at(time())`, e.g.
+    /// [`Motion::translating`] from it), or the geometry jumps. The wall candidates stay valid
+    /// (they are checked against the pose at every step) and the force series continues.
+    pub fn set_geometry_motion(&mut self, id: GeometryId, motion: Motion) {
+        self.geometries[id.0 as usize].motion = motion;
+        // A Verlet step must evaluate the forces again with the new wall velocity.
+        self.forces_current = false;
+    }
+
+    /// The last recorded load of geometry `id` (the resultant of the particle contact forces
+    /// at the last recorded force evaluation), if one was recorded since the series was last
+    /// cleared.
+    pub fn last_geometry_sample(&self, id: GeometryId) -> Option<GeometrySample> {
+        self.series[id.0 as usize].last().copied()
+    }
+
     /// Recorded force/torque samples of a geometry, oldest first.
     pub fn geometry_series(&self, id: GeometryId) -> &[GeometrySample] {
         &self.series[id.0 as usize]

@@ -196,8 +196,10 @@ pub(crate) struct Setup {
     pub dt: f64,
 }
 
+/// Checks the bed's fields only ([`DrillSpec::validate_bed`]): a drilling run checks the rest
+/// itself.
 pub(crate) fn setup(spec: &DrillSpec) -> Result<Setup, DrillError> {
-    spec.validate()?;
+    spec.validate_bed()?;
     let table = spec
         .material_set()
         .build()

@@ -20,6 +20,7 @@ mod spec;
 
 pub use crate::progress::Control;
 pub use bed::{bed_key, build_bed, BedProgress, SettledBed, SettledBy, BED_FORMAT};
+pub(crate) use bed::{kinetic_energy_ratio, setup, Setup};
 pub use measure::{
     height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
     HoleMeasurement, MeasureError,
@@ -29,6 +30,7 @@ pub use run::{
     run_drill, run_drill_on_bed, BedInfo, DrillError, DrillResult, DrillRun, DrillStatus,
     LoadSample, Progress,
 };
+pub(crate) use spec::max_radius;
 pub use spec::{
     AugerGeometry, BedSpec, BinSpec, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SettleSpec,
     SpecError, StlDrill, PRESETS,

@@ -299,6 +299,7 @@ fn drill(
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
     let started = Instant::now();
+    spec.validate()?;
     let s = setup(spec)?;
     let a = &spec.auger;
     let d = &spec.drill;

@@ -454,6 +454,14 @@ impl DrillSpec {
     /// Checks what the engine does not check itself (materials, size distribution and mesh are
     /// checked when the world is built). The error names the field.
     pub fn validate(&self) -> Result<(), SpecError> {
+        self.validate_bed()?;
+        self.validate_drilling()
+    }
+
+    /// Checks the fields that make the bed ([`super::bed_key`]'s inputs, the wall-time cap):
+    /// all [`super::build_bed`] needs. The shear test builds its sample with it from a spec
+    /// whose auger and drilling fields are unused.
+    pub fn validate_bed(&self) -> Result<(), SpecError> {
         let positive = |path: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -506,6 +514,49 @@ impl DrillSpec {
                 ));
             }
         }
+        let max_radius = max_radius(&self.particle);
+        if max_radius.is_finite()
+            && max_radius > 0.0
+            && 8.0 * max_radius > self.bin.size_x.min(self.bin.size_y)
+        {
+            return Err(invalid(
+                "particle",
+                "grains are too large for the bin (need at least 4 across)",
+            ));
+        }
+        let f = self.time_step_rayleigh_fraction;
+        if !(f > 0.0 && f <= 1.0) {
+            return Err(invalid(
+                "time_step_rayleigh_fraction",
+                format!("must be in (0, 1], got {f}"),
+            ));
+        }
+        if let Some(cap) = self.wall_time_cap {
+            positive("wall_time_cap", cap)?;
+        }
+        let m = &self.measure;
+        positive("measure.cell_fraction", m.cell_fraction)?;
+        non_negative("measure.probe_fraction", m.probe_fraction)?;
+        non_negative("measure.wall_margin_diameters", m.wall_margin_diameters)?;
+        Ok(())
+    }
+
+    /// The auger, its kinematics, the settling after drilling and the hole measurement.
+    fn validate_drilling(&self) -> Result<(), SpecError> {
+        let positive = |path: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(invalid(path, format!("must be finite and > 0, got {v}")))
+            }
+        };
+        let non_negative = |path: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(invalid(path, format!("must be finite and >= 0, got {v}")))
+            }
+        };
         let a = &self.auger;
         positive("auger.outer_diameter", a.outer_diameter)?;
         if let Some(stl) = &self.auger_stl {
@@ -584,14 +635,7 @@ impl DrillSpec {
                 format!("must be less than the bin's smaller side ({min_side})"),
             ));
         }
-        let max_radius = match &self.particle {
-            SizeDistributionSpec::Fixed { radius } => *radius,
-            SizeDistributionSpec::Uniform { max_radius, .. }
-            | SizeDistributionSpec::Normal { max_radius, .. } => *max_radius,
-            SizeDistributionSpec::SieveTable { rows } => {
-                0.5 * rows.iter().map(|r| r.size).fold(0.0, f64::max)
-            }
-        };
+        let max_radius = max_radius(&self.particle);
         if max_radius.is_finite() && max_radius > 0.0 {
             // The tip must stay a few grains above the floor.
             if d.depth + 4.0 * max_radius > self.bed.depth {
@@ -605,29 +649,22 @@ impl DrillSpec {
                     ),
                 ));
             }
-            if 8.0 * max_radius > min_side {
-                return Err(invalid(
-                    "particle",
-                    "grains are too large for the bin (need at least 4 across)",
-                ));
-            }
-        }
-        let f = self.time_step_rayleigh_fraction;
-        if !(f > 0.0 && f <= 1.0) {
-            return Err(invalid(
-                "time_step_rayleigh_fraction",
-                format!("must be in (0, 1], got {f}"),
-            ));
-        }
-        if let Some(cap) = self.wall_time_cap {
-            positive("wall_time_cap", cap)?;
         }
         let m = &self.measure;
-        positive("measure.cell_fraction", m.cell_fraction)?;
-        non_negative("measure.probe_fraction", m.probe_fraction)?;
         positive("measure.open_depth_diameters", m.open_depth_diameters)?;
-        non_negative("measure.wall_margin_diameters", m.wall_margin_diameters)?;
         positive("measure.series_interval", m.series_interval)?;
         Ok(())
+    }
+}
+
+/// The largest grain radius a size distribution can give, m.
+pub(crate) fn max_radius(particle: &SizeDistributionSpec) -> f64 {
+    match particle {
+        SizeDistributionSpec::Fixed { radius } => *radius,
+        SizeDistributionSpec::Uniform { max_radius, .. }
+        | SizeDistributionSpec::Normal { max_radius, .. } => *max_radius,
+        SizeDistributionSpec::SieveTable { rows } => {
+            0.5 * rows.iter().map(|r| r.size).fold(0.0, f64::max)
+        }
     }
 }

@@ -1,0 +1,151 @@
+//! `repose shear`: the direct shear virtual experiment on the DEM engine: a split steel box
+//! filled with the soil, consolidated under a servo-controlled lid at each normal stress and
+//! sheared at constant speed; the Mohr-Coulomb fit gives the cohesion and friction angle.
+//!
+//! Prints the result as JSON (stresses in kPa: `cohesion_kpa`, `friction_angle_deg`, the fit's
+//! quality, each stage's peak and residual) and writes `result.json`, `shear_curves.svg` (shear
+//! stress against displacement per normal stress), `mohr_coulomb.svg` (the lines and points)
+//! and `shear_curves.csv` into `--out`. With `--bed-cache DIR` the settled sample is stored in
+//! DIR under its key (`<key>.json`, the drilling bed store) and reused by later runs with the
+//! same sample parameters.
+
+use crate::sim::write_file;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use repose_experiments::catalog::BedStore;
+use repose_experiments::shear::{build_sample, run_shear_on_bed, sample_key, Control, ShearSpec};
+use repose_worker::FileBedStore;
+use std::io::Write;
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub struct ShearArgs {
+    /// Experiment spec (JSON, a `ShearSpec`); fields not given take the preset's values.
+    #[arg(long)]
+    pub spec: Option<PathBuf>,
+    /// Start from a preset: `default` (100 mm box, ~3 000 grains of 6 mm, four normal stresses)
+    /// or `fast` (50 mm box, ~1 000 grains of 4.4 mm, three normal stresses, tens of seconds).
+    #[arg(long, default_value = "default")]
+    pub preset: String,
+    /// Change one field by its dotted path, e.g. `soil_soil.static_friction=0.5`,
+    /// `normal_stresses_kpa=[5,10,20]`,
+    /// `soil_soil.cohesion={"model":"linear","energy_density":1e5}` (repeatable, in order).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Directory for result.json, shear_curves.svg, mohr_coulomb.svg, shear_curves.csv
+    /// (created if missing).
+    #[arg(long, required_unless_present = "print_spec")]
+    pub out: Option<PathBuf>,
+    /// Directory of settled samples (`<key>.json`): reused when present, stored when built.
+    #[arg(long)]
+    pub bed_cache: Option<PathBuf>,
+    /// Worker threads (default: all cores). Results are identical for any count.
+    #[arg(long, env = "REPOSE_THREADS")]
+    pub threads: Option<usize>,
+    /// Print the effective spec (after --preset/--spec/--set) as JSON and exit.
+    #[arg(long)]
+    pub print_spec: bool,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+fn effective_spec(args: &ShearArgs) -> Result<ShearSpec> {
+    let mut spec = match &args.spec {
+        Some(path) => crate::sim::spec_over_preset(path, &ShearSpec::preset(&args.preset)?)?,
+        None => ShearSpec::preset(&args.preset)?,
+    };
+    spec.apply_assignments(args.set.iter().map(String::as_str))?;
+    spec.validate()?;
+    Ok(spec)
+}
+
+pub fn run(args: &ShearArgs) -> Result<()> {
+    let spec = effective_spec(args)?;
+    if args.print_spec {
+        println!("{}", spec.to_json());
+        return Ok(());
+    }
+    let out = args.out.as_ref().expect("clap requires --out");
+    let threads = match args.threads {
+        Some(0) => bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    if let Some(dir) = &args.bed_cache {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("cannot start the thread pool")?;
+
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(1000)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg}")
+            .expect("valid template"),
+    );
+    let key = sample_key(&spec);
+    let mut store = args.bed_cache.as_ref().map(FileBedStore::new);
+    let cached = store.as_mut().and_then(|s| s.get(&key));
+    let reused = cached.is_some();
+    let bed_share = if reused { 0.0 } else { 0.2 };
+    let started = std::time::Instant::now();
+    let report = |fraction: f64, phase: &str, time: f64, particles: usize| {
+        bar.set_position((fraction * 1000.0) as u64);
+        bar.set_message(format!("{phase} t={time:.3} s, {particles} grains"));
+        Control::Continue
+    };
+    let run = pool.install(|| -> Result<_> {
+        let bed = match cached {
+            Some(bed) => bed,
+            None => {
+                let bed = build_sample(&spec, &mut |p| {
+                    report(bed_share * p.fraction, p.phase, p.time, p.particles)
+                })?;
+                if let Some(store) = &store {
+                    store.write(&bed).with_context(|| {
+                        format!("cannot keep the sample in {}", store.dir().display())
+                    })?;
+                }
+                bed
+            }
+        };
+        Ok(run_shear_on_bed(&spec, bed, &mut |p| {
+            report(
+                bed_share + (1.0 - bed_share) * p.fraction,
+                p.phase,
+                p.time,
+                p.particles,
+            )
+        })?)
+    })?;
+    bar.finish_and_clear();
+    let mut result = run.result.clone();
+    result.bed.reused = reused;
+    // This command's wall time, the sample included when it was built here.
+    result.wall_time_s = started.elapsed().as_secs_f64();
+
+    let json = serde_json::to_string_pretty(&result)?;
+    write_file(&out.join("result.json"), |w| writeln!(w, "{json}"))?;
+    let curves = run.curves_svg();
+    write_file(&out.join("shear_curves.svg"), |w| {
+        w.write_all(curves.as_bytes())
+    })?;
+    let strength = run.strength_svg();
+    write_file(&out.join("mohr_coulomb.svg"), |w| {
+        w.write_all(strength.as_bytes())
+    })?;
+    let csv = run.curves_csv();
+    write_file(&out.join("shear_curves.csv"), |w| {
+        w.write_all(csv.as_bytes())
+    })?;
+    println!("{json}");
+    Ok(())
+}

@@ -1,0 +1,297 @@
+//! Pictures of a shear test as self-contained SVG text: the shear stress against the
+//! displacement for each normal stress ([`curves_svg`]) and the Mohr-Coulomb lines with their
+//! points ([`strength_svg`]).
+
+use std::fmt::Write as _;
+
+use super::run::ShearResult;
+
+const ML: f64 = 70.0;
+const MR: f64 = 30.0;
+const MT: f64 = 60.0;
+const MB: f64 = 50.0;
+const WIDTH: f64 = 760.0;
+const HEIGHT: f64 = 500.0;
+
+/// One colour per stage, cycling.
+const COLOURS: [&str; 6] = [
+    "#1f5fa8", "#d35400", "#27ae60", "#8e44ad", "#c0392b", "#7f8c8d",
+];
+
+fn header() -> String {
+    format!(
+        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<svg xmlns=\"http://www.w3.org/2000/svg\" \
+         width=\"{WIDTH:.0}\" height=\"{HEIGHT:.0}\" viewBox=\"0 0 {WIDTH:.0} {HEIGHT:.0}\" \
+         font-family=\"sans-serif\" font-size=\"13\">\n<rect width=\"100%\" height=\"100%\" \
+         fill=\"white\"/>\n"
+    )
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+/// A "nice" tick step for a span.
+fn tick_step(span: f64, target: usize) -> f64 {
+    let raw = span / target.max(1) as f64;
+    let mag = 10f64.powf(raw.log10().floor());
+    let norm = raw / mag;
+    let nice = if norm < 1.5 {
+        1.0
+    } else if norm < 3.5 {
+        2.0
+    } else if norm < 7.5 {
+        5.0
+    } else {
+        10.0
+    };
+    nice * mag
+}
+
+fn trim(v: f64) -> String {
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" {
+        "0".to_owned()
+    } else {
+        s.to_owned()
+    }
+}
+
+/// The plot area mapping data (x in `[x0, x1]`, y in `[y0, y1]`) to the page.
+struct Frame {
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+}
+
+impl Frame {
+    fn x(&self, v: f64) -> f64 {
+        ML + (v - self.x0) / (self.x1 - self.x0) * (WIDTH - ML - MR)
+    }
+    fn y(&self, v: f64) -> f64 {
+        MT + (self.y1 - v) / (self.y1 - self.y0) * (HEIGHT - MT - MB)
+    }
+
+    /// Box, zero lines, ticks and axis labels.
+    fn axes(&self, s: &mut String, x_label: &str, y_label: &str) {
+        let (w, h) = (WIDTH - ML - MR, HEIGHT - MT - MB);
+        let _ = writeln!(
+            s,
+            "<rect x=\"{ML}\" y=\"{MT}\" width=\"{w:.1}\" height=\"{h:.1}\" fill=\"none\" stroke=\"#999\"/>"
+        );
+        if self.y0 < 0.0 && self.y1 > 0.0 {
+            let _ = writeln!(
+                s,
+                "<line x1=\"{ML}\" y1=\"{0:.1}\" x2=\"{1:.1}\" y2=\"{0:.1}\" stroke=\"#bbb\"/>",
+                self.y(0.0),
+                ML + w
+            );
+        }
+        let step = tick_step(self.x1 - self.x0, 8);
+        let mut v = (self.x0 / step).ceil() * step;
+        while v <= self.x1 + 1e-12 {
+            let _ = writeln!(
+                s,
+                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" fill=\"#333\">{}</text>",
+                self.x(v),
+                MT + h + 18.0,
+                trim(v)
+            );
+            v += step;
+        }
+        let step = tick_step(self.y1 - self.y0, 6);
+        let mut v = (self.y0 / step).ceil() * step;
+        while v <= self.y1 + 1e-12 {
+            let _ = writeln!(
+                s,
+                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" fill=\"#333\">{}</text>",
+                ML - 6.0,
+                self.y(v) + 4.0,
+                trim(v)
+            );
+            v += step;
+        }
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
+            ML + 0.5 * w,
+            HEIGHT - 10.0,
+            escape(x_label)
+        );
+        let _ = writeln!(
+            s,
+            "<text transform=\"translate(18 {:.1}) rotate(-90)\" text-anchor=\"middle\">{}</text>",
+            MT + 0.5 * h,
+            escape(y_label)
+        );
+    }
+}
+
+/// Shear stress (kPa) against displacement (mm), one curve per normal stress, each peak
+/// marked.
+pub fn curves_svg(result: &ShearResult) -> String {
+    let mut s = header();
+    let title = match (result.cohesion_kpa, result.friction_angle_deg) {
+        (Some(c), Some(phi)) => {
+            format!(
+                "direct shear: shear stress against displacement (c = {c:.2} kPa, φ = {phi:.1}°)"
+            )
+        }
+        _ => "direct shear: shear stress against displacement".to_owned(),
+    };
+    let _ = writeln!(s, "<text x=\"{ML}\" y=\"28\">{}</text>", escape(&title));
+    let samples = result.stages.iter().flat_map(|st| &st.series);
+    let (mut x1, mut y0, mut y1) = (0.0f64, 0.0f64, 0.0f64);
+    for p in samples {
+        x1 = x1.max(p.displacement_mm);
+        y0 = y0.min(p.shear_stress_kpa);
+        y1 = y1.max(p.shear_stress_kpa);
+    }
+    let frame = Frame {
+        x0: 0.0,
+        x1: x1.max(1e-6),
+        y0: y0 - 0.05 * (y1 - y0),
+        y1: (y1 + 0.08 * (y1 - y0)).max(1e-6),
+    };
+    frame.axes(&mut s, "shear displacement (mm)", "shear stress (kPa)");
+    for (k, stage) in result.stages.iter().enumerate() {
+        let colour = COLOURS[k % COLOURS.len()];
+        let mut pts = String::new();
+        for p in &stage.series {
+            let _ = write!(
+                pts,
+                "{:.1},{:.1} ",
+                frame.x(p.displacement_mm),
+                frame.y(p.shear_stress_kpa)
+            );
+        }
+        let _ = writeln!(
+            s,
+            "<polyline fill=\"none\" stroke=\"{colour}\" stroke-width=\"1.3\" points=\"{pts}\"/>"
+        );
+        let _ = writeln!(
+            s,
+            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"4\" fill=\"{colour}\"/>",
+            frame.x(stage.peak_displacement_mm),
+            frame.y(stage.peak_kpa)
+        );
+        let legend_y = MT + 18.0 + 18.0 * k as f64;
+        let _ = writeln!(
+            s,
+            "<line x1=\"{:.1}\" y1=\"{legend_y:.1}\" x2=\"{:.1}\" y2=\"{legend_y:.1}\" stroke=\"{colour}\" stroke-width=\"2\"/>",
+            ML + 12.0,
+            ML + 36.0
+        );
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\">σ = {} kPa: peak {:.2} kPa at {:.2} mm, residual {:.2} kPa{}</text>",
+            ML + 42.0,
+            legend_y + 4.0,
+            trim(stage.normal_stress_kpa),
+            stage.peak_kpa,
+            stage.peak_displacement_mm,
+            stage.residual_kpa,
+            if stage.consolidated { "" } else { " (not consolidated)" }
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// The Mohr-Coulomb lines τ = c + σ tan φ through the peaks (filled points, solid line) and the
+/// residuals (open points, dashed line), against the normal stress on the shear plane.
+pub fn strength_svg(result: &ShearResult) -> String {
+    let mut s = header();
+    let title = match &result.peak_fit {
+        Some(f) => format!(
+            "Mohr-Coulomb: c = {:.2} kPa, φ = {:.1}° (R² = {:.3}, {} stresses)",
+            f.cohesion_kpa, f.friction_angle_deg, f.r_squared, f.points
+        ),
+        None => "Mohr-Coulomb: no fit".to_owned(),
+    };
+    let _ = writeln!(s, "<text x=\"{ML}\" y=\"28\">{}</text>", escape(&title));
+    let sigma_max = result
+        .stages
+        .iter()
+        .map(|st| st.plane_normal_stress_kpa)
+        .fold(0.0, f64::max);
+    let x1 = 1.1 * sigma_max.max(1e-6);
+    let mut y0 = 0.0f64;
+    let mut y1 = 0.0f64;
+    for st in &result.stages {
+        y1 = y1.max(st.peak_kpa).max(st.residual_kpa);
+        y0 = y0.min(st.residual_kpa);
+    }
+    for fit in [&result.peak_fit, &result.residual_fit]
+        .into_iter()
+        .flatten()
+    {
+        let slope = fit.friction_angle_deg.to_radians().tan();
+        for sigma in [0.0, x1] {
+            let tau = fit.cohesion_kpa + slope * sigma;
+            y0 = y0.min(tau);
+            y1 = y1.max(tau);
+        }
+    }
+    let frame = Frame {
+        x0: 0.0,
+        x1,
+        y0: y0 - 0.05 * (y1 - y0),
+        y1: (y1 + 0.1 * (y1 - y0)).max(1e-6),
+    };
+    frame.axes(
+        &mut s,
+        "normal stress on the shear plane σ (kPa)",
+        "shear stress τ (kPa)",
+    );
+    let lines = [
+        (&result.peak_fit, "#1f5fa8", "", "peak"),
+        (
+            &result.residual_fit,
+            "#d35400",
+            " stroke-dasharray=\"6 4\"",
+            "residual",
+        ),
+    ];
+    for (k, (fit, colour, dash, name)) in lines.iter().enumerate() {
+        if let Some(fit) = fit {
+            let slope = fit.friction_angle_deg.to_radians().tan();
+            let _ = writeln!(
+                s,
+                "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"{colour}\" stroke-width=\"1.5\"{dash}/>",
+                frame.x(0.0),
+                frame.y(fit.cohesion_kpa),
+                frame.x(x1),
+                frame.y(fit.cohesion_kpa + slope * x1)
+            );
+            let legend_y = MT + 18.0 + 18.0 * k as f64;
+            let _ = writeln!(
+                s,
+                "<text x=\"{:.1}\" y=\"{legend_y:.1}\" fill=\"{colour}\">{name}: c = {:.2} kPa, φ = {:.1}°, R² = {:.3}</text>",
+                ML + 12.0,
+                fit.cohesion_kpa,
+                fit.friction_angle_deg,
+                fit.r_squared
+            );
+        }
+    }
+    for st in &result.stages {
+        let x = frame.x(st.plane_normal_stress_kpa);
+        let _ = writeln!(
+            s,
+            "<circle cx=\"{x:.1}\" cy=\"{:.1}\" r=\"4.5\" fill=\"#1f5fa8\"/>",
+            frame.y(st.peak_kpa)
+        );
+        let _ = writeln!(
+            s,
+            "<circle cx=\"{x:.1}\" cy=\"{:.1}\" r=\"4.5\" fill=\"white\" stroke=\"#d35400\" stroke-width=\"1.5\"/>",
+            frame.y(st.residual_kpa)
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}

@@ -1,0 +1,709 @@
+//! Runs a [`ShearSpec`]: the sample is poured into the closed box and settled (once; a caller
+//! may cache it), then for each normal stress, from that same sample: the lid is lowered and
+//! servo-controlled until it holds the normal stress (consolidation), the upper half and the
+//! lid move along +x at constant speed while the lid keeps holding the stress (shearing), and
+//! the shear force is recorded against the displacement.
+//!
+//! Frame: z up, the box's floor at z = 0 centred on the z axis, the shear plane at
+//! z = `box.half_height`. Geometries (all steel):
+//! - the lower half: floor and walls up to the shear plane, with a ledge at the plane's height
+//!   beyond its +x wall (as wide as the displacement plus two grains) on which the part of the
+//!   upper sample that moves past the lower half rests instead of falling out;
+//! - the upper half: four walls from the shear plane up `box.upper_height`;
+//! - the lid: a square as wide as the inside, driven by [`World::set_geometry_motion`].
+//!
+//! The shear force is the force of the grains on the lower half along x: quasi-statically the
+//! lower sample is in equilibrium, so it is the force carried across the shear plane (it does
+//! not include the lid's or the upper half's wall friction). The normal stress on the plane is
+//! measured too: the lid's force plus the weight of the grains above the plane (at the start of
+//! shearing) less the vertical load the upper half's walls take by friction, over the box's
+//! inside area (the nominal area, not corrected for the displacement; so is the shear stress).
+
+use std::time::Instant;
+
+use repose_engine::kinematics::Motion;
+use repose_engine::math::{Pose, Vec3};
+use repose_engine::mesh::generators::{open_box, plane};
+use repose_engine::mesh::TriMesh;
+use repose_engine::neighbor::Domain;
+use repose_engine::particles::ParticleSpec;
+use repose_engine::world::{Geometry, GeometryId, World, WorldConfig};
+use serde::{Deserialize, Serialize};
+
+use super::measure::{mohr_coulomb_fit, shear_strength, MohrCoulomb, ShearRecord, StrengthPoint};
+use super::picture::{curves_svg, strength_svg};
+use super::spec::{ShearSpec, SpecError};
+use crate::drill::{
+    bed_key, build_bed, kinetic_energy_ratio, setup, BedInfo, DrillError, SettledBed, Setup,
+};
+pub use crate::progress::{Control, Progress};
+
+/// Why a run could not start or was stopped before it could report (a finished run whose
+/// stages did not all consolidate is a [`ShearResult`] with a non-`ok` status, not an error).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ShearError {
+    #[error(transparent)]
+    Spec(#[from] SpecError),
+    /// The engine rejected the world built from the spec (materials, meshes, grains).
+    #[error("{part}: {reason}")]
+    Build { part: &'static str, reason: String },
+    /// The sample handed to [`run_shear_on_bed`] was built for other parameters.
+    #[error(
+        "the sample was built for other parameters (bed key {found}, the spec needs {expected})"
+    )]
+    BedMismatch { expected: String, found: String },
+    /// The progress callback cancelled.
+    #[error("cancelled")]
+    Cancelled,
+    /// `wall_time_cap` ran out.
+    #[error("wall_time_cap ({cap_s} s) reached while {phase}")]
+    WallTimeCap { phase: &'static str, cap_s: f64 },
+}
+
+impl From<DrillError> for ShearError {
+    fn from(e: DrillError) -> ShearError {
+        match e {
+            DrillError::Spec(e) => ShearError::Spec(e),
+            DrillError::Build { part, reason } => ShearError::Build { part, reason },
+            DrillError::BedMismatch { expected, found } => {
+                ShearError::BedMismatch { expected, found }
+            }
+            DrillError::Cancelled => ShearError::Cancelled,
+            DrillError::WallTimeCap { cap_s, .. } => ShearError::WallTimeCap {
+                phase: "building the sample",
+                cap_s,
+            },
+        }
+    }
+}
+
+fn build_error(part: &'static str, e: impl std::fmt::Display) -> ShearError {
+    ShearError::Build {
+        part,
+        reason: e.to_string(),
+    }
+}
+
+/// Overall outcome. The strength is reported for every status but `measurement_failed`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShearStatus {
+    Ok,
+    /// The poured sample did not come to rest within its time cap (sheared as it stood).
+    SampleNotSettled,
+    /// A stage's lid did not hold its force within the tolerance before the time cap (that
+    /// stage was sheared anyway).
+    NotConsolidated,
+    /// No Mohr-Coulomb fit could be made.
+    MeasurementFailed,
+}
+
+/// One recorded point of a stage's shearing (means over one servo interval).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ShearSample {
+    /// Displacement of the upper half at the interval's middle, mm.
+    pub displacement_mm: f64,
+    /// Shear force on the lower half over the box's area, kPa.
+    pub shear_stress_kpa: f64,
+    /// The lid's force over the box's area, kPa (its target is the stage's normal stress).
+    pub lid_stress_kpa: f64,
+    /// Height of the lid above the floor, mm (its rise is the sample's dilation).
+    pub lid_z_mm: f64,
+}
+
+/// One normal stress: consolidation and shearing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShearStage {
+    /// The lid's target, kPa.
+    pub normal_stress_kpa: f64,
+    /// On the shear plane, the Mohr-Coulomb fit's σ: the mean while shearing of the lid's force,
+    /// plus the weight of the grains above the plane, less what the upper half's walls carry by
+    /// friction, over the box's area, kPa.
+    pub plane_normal_stress_kpa: f64,
+    pub consolidated: bool,
+    /// Simulated time from the lid's start to consolidation (or the cap), s.
+    pub consolidation_time_s: f64,
+    /// Largest shear stress and the displacement where it occurred.
+    pub peak_kpa: f64,
+    pub peak_displacement_mm: f64,
+    /// Mean shear stress over the last `shear.residual_fraction` of the displacement.
+    pub residual_kpa: f64,
+    /// The lid's mean stress while shearing (how well the servo held it), kPa.
+    pub mean_lid_stress_kpa: f64,
+    /// Rise of the lid from the start to the end of shearing, mm (positive: dilation).
+    pub dilation_mm: f64,
+    /// Mean kinetic energy per grain over m g d at the end of consolidation.
+    pub kinetic_energy_ratio: f64,
+    /// Grains in the box (poured grains resting on a wall's rim are left out).
+    pub particles: usize,
+    /// Grains that left the box during the stage.
+    pub escaped: u64,
+    pub steps: u64,
+    pub series: Vec<ShearSample>,
+}
+
+/// The result of one shear test (serde; what `result.json` holds). Stresses in kPa, lengths in
+/// mm, times in s.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShearResult {
+    pub status: ShearStatus,
+    pub message: Option<String>,
+    /// Of the peak strength line (the usual reading of a direct shear test).
+    pub cohesion_kpa: Option<f64>,
+    pub friction_angle_deg: Option<f64>,
+    /// The Mohr-Coulomb fit through the peaks and through the residuals (quality included).
+    pub peak_fit: Option<MohrCoulomb>,
+    pub residual_fit: Option<MohrCoulomb>,
+    pub stages: Vec<ShearStage>,
+    pub bed: BedInfo,
+    pub box_side_mm: f64,
+    pub shear_plane_mm: f64,
+    pub grain_diameter_mm: f64,
+    /// Grains in the box (the sample's grains resting on a wall's rim left out).
+    pub particles: usize,
+    pub time_step_s: f64,
+    /// Over all stages (the sample's own time is in `bed`).
+    pub simulated_time_s: f64,
+    pub steps: u64,
+    /// Wall time of this call (the sample included if it was built here), s.
+    pub wall_time_s: f64,
+}
+
+impl ShearResult {
+    /// Scalar results for a job server: `cohesion_kpa`, `friction_angle_deg`, `r_squared`,
+    /// `rmse_kpa`, `cohesion_std_error_kpa` (with three or more stresses), the same for the
+    /// residual line (`residual_cohesion_kpa`, `residual_friction_angle_deg`,
+    /// `residual_r_squared`), `max_peak_kpa`, `mean_dilation_mm`, `particles`,
+    /// `simulated_time_s`, and `came_to_rest` (1 when the sample settled and every stage
+    /// consolidated, else 0; such a run is still measured, like the angle-of-repose runs).
+    pub fn metrics(&self) -> std::collections::BTreeMap<String, f64> {
+        let mut m = std::collections::BTreeMap::new();
+        let Some(peak) = &self.peak_fit else {
+            return m;
+        };
+        let ok = self.status == ShearStatus::Ok;
+        let mut values = vec![
+            ("came_to_rest", Some(if ok { 1.0 } else { 0.0 })),
+            ("cohesion_kpa", Some(peak.cohesion_kpa)),
+            ("friction_angle_deg", Some(peak.friction_angle_deg)),
+            ("r_squared", Some(peak.r_squared)),
+            ("rmse_kpa", Some(peak.rmse_kpa)),
+            ("cohesion_std_error_kpa", peak.cohesion_std_error_kpa),
+            (
+                "max_peak_kpa",
+                self.stages.iter().map(|s| s.peak_kpa).reduce(f64::max),
+            ),
+            (
+                "mean_dilation_mm",
+                Some(
+                    self.stages.iter().map(|s| s.dilation_mm).sum::<f64>()
+                        / self.stages.len().max(1) as f64,
+                ),
+            ),
+            ("particles", Some(self.particles as f64)),
+            ("simulated_time_s", Some(self.simulated_time_s)),
+        ];
+        if let Some(r) = &self.residual_fit {
+            values.push(("residual_cohesion_kpa", Some(r.cohesion_kpa)));
+            values.push(("residual_friction_angle_deg", Some(r.friction_angle_deg)));
+            values.push(("residual_r_squared", Some(r.r_squared)));
+        }
+        for (k, v) in values {
+            if let Some(v) = v.filter(|v| v.is_finite()) {
+                m.insert(k.to_owned(), v);
+            }
+        }
+        m
+    }
+}
+
+/// A finished run: the result and what a caller may want to draw or keep.
+#[derive(Debug, Clone)]
+pub struct ShearRun {
+    pub result: ShearResult,
+    /// The sample the stages started from.
+    pub bed: SettledBed,
+    pub spec: ShearSpec,
+}
+
+impl ShearRun {
+    /// Shear stress against displacement, one curve per normal stress.
+    pub fn curves_svg(&self) -> String {
+        curves_svg(&self.result)
+    }
+
+    /// The Mohr-Coulomb lines (peak and residual) with their points.
+    pub fn strength_svg(&self) -> String {
+        strength_svg(&self.result)
+    }
+
+    /// Every stage's record as CSV: `normal_stress_kpa,displacement_mm,shear_stress_kpa,
+    /// lid_stress_kpa,lid_z_mm`.
+    pub fn curves_csv(&self) -> String {
+        let mut s = String::from(
+            "normal_stress_kpa,displacement_mm,shear_stress_kpa,lid_stress_kpa,lid_z_mm\n",
+        );
+        for stage in &self.result.stages {
+            for p in &stage.series {
+                s.push_str(&format!(
+                    "{},{},{},{},{}\n",
+                    stage.normal_stress_kpa,
+                    p.displacement_mm,
+                    p.shear_stress_kpa,
+                    p.lid_stress_kpa,
+                    p.lid_z_mm
+                ));
+            }
+        }
+        s
+    }
+}
+
+/// The sample's cache key: the drilling bed key of [`ShearSpec::bed_spec`].
+pub fn sample_key(spec: &ShearSpec) -> String {
+    bed_key(&spec.bed_spec())
+}
+
+/// Pours and settles the sample of `spec` (the drilling bed recipe in the closed box).
+pub fn build_sample(
+    spec: &ShearSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<SettledBed, ShearError> {
+    spec.validate()?;
+    Ok(build_bed(&spec.bed_spec(), &mut |p| {
+        progress(Progress {
+            fraction: p.fraction,
+            phase: "sample",
+            time: p.time,
+            particles: p.particles,
+        })
+    })?)
+}
+
+/// Builds the sample and runs every stage on it. The sample takes the first fifth of the
+/// progress fraction.
+pub fn run_shear(
+    spec: &ShearSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<ShearRun, ShearError> {
+    let started = Instant::now();
+    let bed = build_sample(spec, &mut |p| {
+        progress(Progress {
+            fraction: 0.2 * p.fraction,
+            ..p
+        })
+    })?;
+    let mut run = shear(spec, bed, false, &mut |p| {
+        progress(Progress {
+            fraction: 0.2 + 0.8 * p.fraction,
+            ..p
+        })
+    })?;
+    run.result.wall_time_s = started.elapsed().as_secs_f64();
+    Ok(run)
+}
+
+/// Runs every stage on a sample built earlier by [`build_sample`] for a spec with the same
+/// [`sample_key`] (e.g. from a cache). Same outcome, bit for bit, as [`run_shear`].
+pub fn run_shear_on_bed(
+    spec: &ShearSpec,
+    bed: SettledBed,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<ShearRun, ShearError> {
+    let expected = sample_key(spec);
+    if bed.key != expected {
+        return Err(ShearError::BedMismatch {
+            expected,
+            found: bed.key,
+        });
+    }
+    shear(spec, bed, true, progress)
+}
+
+fn shear(
+    spec: &ShearSpec,
+    bed: SettledBed,
+    reused: bool,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<ShearRun, ShearError> {
+    let started = Instant::now();
+    spec.validate()?;
+    // The sample's setup (grain sizes, time step) with the spec's own contacts: the sample was
+    // poured without cohesion, the stages have it.
+    let mut s = setup(&spec.bed_spec())?;
+    s.table = spec
+        .material_set()
+        .build()
+        .map_err(|e| build_error("materials", e))?;
+    let n = spec.normal_stresses_kpa.len();
+    let mut stages = Vec::with_capacity(n);
+    let (mut simulated, mut steps) = (0.0, 0);
+    for (k, &sigma) in spec.normal_stresses_kpa.iter().enumerate() {
+        let stage = run_stage(spec, &s, &bed, sigma, started, &mut |p| {
+            progress(Progress {
+                fraction: (k as f64 + p.fraction) / n as f64,
+                ..p
+            })
+        })?;
+        simulated += stage.steps as f64 * s.dt;
+        steps += stage.steps;
+        stages.push(stage);
+    }
+    let _ = progress(Progress {
+        fraction: 1.0,
+        phase: "measuring",
+        time: simulated,
+        particles: bed.positions.len(),
+    });
+
+    let fit = |value: fn(&ShearStage) -> f64| {
+        let points: Vec<StrengthPoint> = stages
+            .iter()
+            .map(|st| StrengthPoint {
+                normal_stress_pa: 1e3 * st.plane_normal_stress_kpa,
+                shear_stress_pa: 1e3 * value(st),
+            })
+            .collect();
+        mohr_coulomb_fit(&points)
+    };
+    let peak = fit(|st| st.peak_kpa);
+    let residual = fit(|st| st.residual_kpa).ok();
+    let (status, message) = match &peak {
+        Err(e) => (ShearStatus::MeasurementFailed, Some(e.to_string())),
+        Ok(_) if !bed.settled => (
+            ShearStatus::SampleNotSettled,
+            Some(format!(
+                "the poured sample did not come to rest (kinetic energy ratio {:.2e} > {:.2e})",
+                bed.kinetic_energy_ratio, spec.bed.settle.kinetic_energy_threshold
+            )),
+        ),
+        Ok(_) => match stages.iter().find(|st| !st.consolidated) {
+            Some(st) => (
+                ShearStatus::NotConsolidated,
+                Some(format!(
+                    "the lid did not hold {} kPa within {} % for {} s within {} s",
+                    st.normal_stress_kpa,
+                    100.0 * spec.consolidation.tolerance,
+                    spec.consolidation.hold_time,
+                    spec.consolidation.time_cap
+                )),
+            ),
+            None => (ShearStatus::Ok, None),
+        },
+    };
+    let peak = peak.ok();
+    let particles = stages.first().map_or(0, |st| st.particles);
+    let mean_r = bed.radii.iter().sum::<f64>() / bed.radii.len().max(1) as f64;
+    let result = ShearResult {
+        status,
+        message,
+        cohesion_kpa: peak.map(|f| f.cohesion_kpa),
+        friction_angle_deg: peak.map(|f| f.friction_angle_deg),
+        peak_fit: peak,
+        residual_fit: residual,
+        stages,
+        bed: BedInfo {
+            key: bed.key.clone(),
+            particles: bed.positions.len(),
+            settled: bed.settled,
+            reused,
+            surface_z_mm: 1e3 * bed.surface_z,
+            simulated_time_s: bed.simulated_time_s,
+            wall_time_s: bed.wall_time_s,
+        },
+        box_side_mm: 1e3 * spec.shear_box.side,
+        shear_plane_mm: 1e3 * spec.shear_box.half_height,
+        grain_diameter_mm: 2e3 * mean_r,
+        particles,
+        time_step_s: s.dt,
+        simulated_time_s: simulated,
+        steps,
+        wall_time_s: started.elapsed().as_secs_f64() + if reused { 0.0 } else { bed.wall_time_s },
+    };
+    Ok(ShearRun {
+        result,
+        bed,
+        spec: spec.clone(),
+    })
+}
+
+/// Four vertical walls around `[-side/2, side/2]²` from z = `bottom` to z = `top`, open at both
+/// ends.
+fn walls(side: f64, bottom: f64, top: f64) -> Result<TriMesh, ShearError> {
+    let h = 0.5 * side;
+    let corners = [(-h, -h), (h, -h), (h, h), (-h, h)];
+    let mut vertices = Vec::with_capacity(8);
+    for z in [bottom, top] {
+        for &(x, y) in &corners {
+            vertices.push(Vec3::new(x, y, z));
+        }
+    }
+    let mut triangles = Vec::with_capacity(8);
+    for k in 0..4u32 {
+        let k1 = (k + 1) % 4;
+        triangles.push([k, k1, 4 + k1]);
+        triangles.push([k, 4 + k1, 4 + k]);
+    }
+    TriMesh::new(vertices, triangles).map_err(|e| build_error("upper half", e))
+}
+
+/// The lower half: the open box up to the shear plane and the ledge beyond its +x wall.
+fn lower_half(side: f64, plane_z: f64, ledge: f64) -> Result<TriMesh, ShearError> {
+    let cup = open_box(side, side, plane_z).map_err(|e| build_error("lower half", e))?;
+    let strip = plane(ledge, side, 1, 1)
+        .and_then(|m| m.transformed(&Pose::translation(0.5 * side + 0.5 * ledge, 0.0, plane_z)))
+        .map_err(|e| build_error("lower half", e))?;
+    TriMesh::merged(&[&cup, &strip]).map_err(|e| build_error("lower half", e))
+}
+
+/// Mean force on `id` over the samples recorded since the series were last cleared.
+fn mean_force(world: &World, id: GeometryId) -> Vec3 {
+    let series = world.geometry_series(id);
+    if series.is_empty() {
+        return Vec3::zeros();
+    }
+    series.iter().map(|s| s.force).sum::<Vec3>() / series.len() as f64
+}
+
+/// A stage's progress: consolidation is the first 30 % (against its time cap), shearing the
+/// rest (against the displacement).
+const CONSOLIDATION_SHARE: f64 = 0.3;
+
+fn run_stage(
+    spec: &ShearSpec,
+    s: &Setup,
+    bed: &SettledBed,
+    sigma_kpa: f64,
+    started: Instant,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<ShearStage, ShearError> {
+    let side = spec.shear_box.side;
+    let h = spec.shear_box.half_height;
+    let area = side * side;
+    let r_max = s.size.max_radius();
+    let ledge = spec.shear.displacement + 4.0 * r_max;
+    let upper_top = h + spec.shear_box.upper_height;
+    let margin = 4.0 * r_max;
+    let domain = Domain::closed(
+        Vec3::new(-0.5 * side - margin, -0.5 * side - margin, -0.02),
+        Vec3::new(
+            0.5 * side + ledge + spec.shear.displacement + margin,
+            0.5 * side + margin,
+            upper_top + 0.05,
+        ),
+    );
+    let mut config = WorldConfig::new(s.dt, domain);
+    config.rolling_model = spec.engine_rolling_model();
+    config.seed = spec.seed;
+    let mut world = World::new(s.table.clone(), config).map_err(|e| build_error("world", e))?;
+    let add = |name: &str, mesh: TriMesh, pose: Pose, world: &mut World| {
+        world
+            .add_geometry(Geometry {
+                name: name.into(),
+                mesh,
+                motion: Motion::stationary(pose),
+                material: s.steel,
+            })
+            .map_err(|e| build_error("box", e))
+    };
+    let lower = add(
+        "lower half",
+        lower_half(side, h, ledge)?,
+        Pose::identity(),
+        &mut world,
+    )?;
+    let upper = add(
+        "upper half",
+        walls(side, h, upper_top)?,
+        Pose::identity(),
+        &mut world,
+    )?;
+    // Grains poured onto a wall's rim (or over it) are not part of the sample.
+    let inside = |p: &[f64; 3]| {
+        p[0].abs() < 0.5 * side && p[1].abs() < 0.5 * side && p[2] > 0.0 && p[2] < upper_top
+    };
+    let top_grain = bed
+        .positions
+        .iter()
+        .zip(&bed.radii)
+        .filter(|(p, _)| inside(p))
+        .map(|(p, r)| p[2] + r)
+        .fold(0.0, f64::max);
+    let lid_mesh = plane(side, side, 1, 1).map_err(|e| build_error("lid", e))?;
+    let lid = add(
+        "lid",
+        lid_mesh,
+        Pose::translation(0.0, 0.0, top_grain + 0.25 * r_max),
+        &mut world,
+    )?;
+    for k in 0..bed.positions.len() {
+        if !inside(&bed.positions[k]) {
+            continue;
+        }
+        let v = |x: [f64; 3]| Vec3::new(x[0], x[1], x[2]);
+        world
+            .add_particle(ParticleSpec {
+                position: v(bed.positions[k]),
+                velocity: v(bed.velocities[k]),
+                angular_velocity: v(bed.angular_velocities[k]),
+                radius: bed.radii[k],
+                material: s.soil,
+            })
+            .map_err(|e| build_error("sample", e))?;
+    }
+
+    let particles = world.particles().len();
+    let servo = &spec.servo;
+    let steps_per_control = ((servo.interval / s.dt).round() as u64).max(1);
+    let control_time = steps_per_control as f64 * s.dt;
+    let target = 1e3 * sigma_kpa * area;
+    // The lid's force is low-pass filtered (first order, `servo.filter_time`) before it sets
+    // the speed: the raw force of a few hundred contacts jitters by several per cent from one
+    // interval to the next, and a lid that follows the jitter shakes the sample.
+    let smoothing = (control_time / servo.filter_time).min(1.0);
+    let lid_speed = |force: f64| {
+        (servo.gain * (force - target) / target).clamp(-servo.max_speed, servo.max_speed)
+    };
+    let set_motion = |world: &mut World, id: GeometryId, velocity: Vec3| {
+        let t = world.time();
+        let pose = world.geometry(id).motion.pose_at(t);
+        let motion = Motion::translating(pose, velocity, t).map_err(|e| build_error("servo", e))?;
+        world.set_geometry_motion(id, motion);
+        Ok::<(), ShearError>(())
+    };
+    let lid_z = |world: &World| {
+        world
+            .geometry(lid)
+            .motion
+            .pose_at(world.time())
+            .translation
+            .z
+    };
+    let check = |world: &World,
+                 phase: &'static str,
+                 fraction: f64,
+                 progress: &mut dyn FnMut(Progress<'_>) -> Control| {
+        if progress(Progress {
+            fraction,
+            phase,
+            time: world.time(),
+            particles: world.particles().len(),
+        }) == Control::Cancel
+        {
+            return Err(ShearError::Cancelled);
+        }
+        match spec.wall_time_cap {
+            Some(cap) if started.elapsed().as_secs_f64() > cap => {
+                Err(ShearError::WallTimeCap { phase, cap_s: cap })
+            }
+            _ => Ok(()),
+        }
+    };
+
+    // Consolidation: the lid comes down and holds the target force.
+    let c = &spec.consolidation;
+    set_motion(&mut world, lid, Vec3::new(0.0, 0.0, -servo.max_speed))?;
+    world.clear_geometry_series();
+    let mut held = 0.0;
+    let mut force = 0.0;
+    let consolidated = loop {
+        world.run(steps_per_control);
+        force += smoothing * (mean_force(&world, lid).z - force);
+        world.clear_geometry_series();
+        if ((force - target) / target).abs() <= c.tolerance {
+            held += control_time;
+        } else {
+            held = 0.0;
+        }
+        let t = world.time();
+        check(
+            &world,
+            "consolidating",
+            CONSOLIDATION_SHARE * (t / c.time_cap).min(1.0),
+            progress,
+        )?;
+        if held >= c.hold_time {
+            break true;
+        }
+        if t >= c.time_cap {
+            break false;
+        }
+        set_motion(&mut world, lid, Vec3::new(0.0, 0.0, lid_speed(force)))?;
+    };
+    let consolidation_time = world.time();
+    let kinetic_energy_ratio = kinetic_energy_ratio(&world);
+
+    // Shearing: the upper half and the lid move along +x; the lid keeps the stress.
+    let p = world.particles();
+    let above: f64 = (0..p.len())
+        .filter(|&k| p.position[k].z > h)
+        .map(|k| p.mass[k])
+        .sum();
+    let weight_above = above * world.config().gravity.z.abs();
+    let v = spec.shear.speed;
+    let t_start = world.time();
+    let z_start = lid_z(&world);
+    set_motion(&mut world, upper, Vec3::new(v, 0.0, 0.0))?;
+    let mut series = Vec::new();
+    let mut plane_force = 0.0;
+    loop {
+        set_motion(&mut world, lid, Vec3::new(v, 0.0, lid_speed(force)))?;
+        world.run(steps_per_control);
+        let lid_force = mean_force(&world, lid).z;
+        force += smoothing * (lid_force - force);
+        let shear_force = mean_force(&world, lower).x;
+        // What the upper half's walls carry by friction (negative: they hold the soil up).
+        let wall_load = mean_force(&world, upper).z;
+        plane_force += lid_force + wall_load + weight_above;
+        world.clear_geometry_series();
+        let t = world.time();
+        let displacement = v * (t - t_start - 0.5 * control_time);
+        series.push(ShearSample {
+            displacement_mm: 1e3 * displacement,
+            shear_stress_kpa: 1e-3 * shear_force / area,
+            lid_stress_kpa: 1e-3 * lid_force / area,
+            lid_z_mm: 1e3 * lid_z(&world),
+        });
+        let done = v * (t - t_start) >= spec.shear.displacement;
+        check(
+            &world,
+            "shearing",
+            CONSOLIDATION_SHARE
+                + (1.0 - CONSOLIDATION_SHARE)
+                    * (v * (t - t_start) / spec.shear.displacement).min(1.0),
+            progress,
+        )?;
+        if done {
+            break;
+        }
+    }
+    let plane_sigma_kpa = 1e-3 * plane_force / series.len() as f64 / area;
+    let record = ShearRecord {
+        normal_stress_pa: 1e3 * plane_sigma_kpa,
+        area_m2: area,
+        displacement_m: series.iter().map(|p| 1e-3 * p.displacement_mm).collect(),
+        shear_force_n: series
+            .iter()
+            .map(|p| 1e3 * p.shear_stress_kpa * area)
+            .collect(),
+    };
+    let strength = shear_strength(&record, spec.shear.residual_fraction)
+        .map_err(|e| build_error("shear record", e))?;
+    let mean_lid = series.iter().map(|p| p.lid_stress_kpa).sum::<f64>() / series.len() as f64;
+    Ok(ShearStage {
+        normal_stress_kpa: sigma_kpa,
+        plane_normal_stress_kpa: plane_sigma_kpa,
+        consolidated,
+        consolidation_time_s: consolidation_time,
+        peak_kpa: 1e-3 * strength.peak_pa,
+        peak_displacement_mm: 1e3 * strength.peak_displacement_m,
+        residual_kpa: 1e-3 * strength.residual_pa,
+        mean_lid_stress_kpa: mean_lid,
+        dilation_mm: 1e3 * (lid_z(&world) - z_start),
+        kinetic_energy_ratio,
+        particles,
+        escaped: world.removed_count(),
+        steps: world.steps(),
+        series,
+    })
+}

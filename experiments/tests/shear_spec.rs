@@ -1,0 +1,120 @@
+//! The shear test's spec: presets validate, `--set` paths and validation errors name the
+//! field, the contact parameters share the angle-of-repose factor paths, the sample key follows
+//! the sample's inputs only.
+
+use repose_experiments::aor::AorSpec;
+use repose_experiments::shear::{sample_key, ShearSpec, SpecError, PRESETS};
+
+fn invalid_path(e: SpecError) -> String {
+    match e {
+        SpecError::Invalid { path, .. } => path,
+        other => panic!("expected Invalid, got {other:?}"),
+    }
+}
+
+#[test]
+fn presets_validate_and_unknown_ones_are_refused() {
+    for name in PRESETS {
+        let spec = ShearSpec::preset(name).unwrap();
+        spec.validate().unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(ShearSpec::from_json(&spec.to_json()).unwrap(), spec);
+    }
+    assert_eq!(
+        invalid_path(ShearSpec::preset("huge").unwrap_err()),
+        "preset"
+    );
+}
+
+#[test]
+fn set_reaches_every_field_and_shares_the_aor_factor_paths() {
+    let mut spec = ShearSpec::fast();
+    for path in [
+        "soil_soil.static_friction",
+        "soil_soil.rolling_friction",
+        "soil_steel.static_friction",
+        "materials.soil.density",
+    ] {
+        spec.set(path, "0.5").unwrap();
+        let mut aor = AorSpec::fast();
+        aor.set(path, "0.5").unwrap();
+    }
+    assert_eq!(spec.soil_soil.static_friction, 0.5);
+    spec.set("normal_stresses_kpa", "[5, 10, 20]").unwrap();
+    assert_eq!(spec.normal_stresses_kpa, vec![5.0, 10.0, 20.0]);
+    spec.set("box.side", "0.06").unwrap();
+    assert_eq!(spec.shear_box.side, 0.06);
+    spec.set(
+        "soil_soil.cohesion",
+        r#"{"model":"linear","energy_density":1e5}"#,
+    )
+    .unwrap();
+    let before = spec.clone();
+    let err = spec.set("box.width", "0.1").unwrap_err();
+    assert!(err.to_string().contains("side"), "{err}");
+    assert_eq!(spec, before, "a failed set changes nothing");
+}
+
+#[test]
+fn validation_names_the_field() {
+    let cases: [(&str, &str, &str); 8] = [
+        ("normal_stresses_kpa", "[5]", "normal_stresses_kpa"),
+        ("normal_stresses_kpa", "[5, 5]", "normal_stresses_kpa"),
+        ("normal_stresses_kpa", "[5, -1]", "normal_stresses_kpa[1]"),
+        ("box.side", "0.01", "box.side"),
+        ("bed.height", "0.2", "bed.height"),
+        ("shear.residual_fraction", "0", "shear.residual_fraction"),
+        ("consolidation.tolerance", "1.5", "consolidation.tolerance"),
+        ("bed.packing_fraction", "0.9", "bed.packing_fraction"),
+    ];
+    for (path, value, named) in cases {
+        let mut spec = ShearSpec::fast();
+        spec.set(path, value).unwrap();
+        assert_eq!(
+            invalid_path(spec.validate().unwrap_err()),
+            named,
+            "{path}={value}"
+        );
+    }
+    let mut spec = ShearSpec::fast();
+    spec.set("soil_soil.static_friction", "-1").unwrap();
+    assert_eq!(
+        invalid_path(spec.validate().unwrap_err()),
+        "soil_soil.static_friction"
+    );
+}
+
+#[test]
+fn the_sample_key_follows_the_sample_inputs_only() {
+    let base = ShearSpec::fast();
+    let key = sample_key(&base);
+    let mut same = base.clone();
+    same.normal_stresses_kpa = vec![1.0, 2.0];
+    same.shear.speed = 0.01;
+    same.servo.gain = 0.2;
+    assert_eq!(
+        sample_key(&same),
+        key,
+        "stages and servo do not change the sample"
+    );
+    same.set(
+        "soil_soil.cohesion",
+        r#"{"model":"linear","energy_density":1e5}"#,
+    )
+    .unwrap();
+    assert_eq!(
+        sample_key(&same),
+        key,
+        "the sample is poured without cohesion, so cohesion does not change it"
+    );
+    let mut other = base.clone();
+    other.soil_soil.static_friction = 0.3;
+    assert_ne!(sample_key(&other), key);
+    let mut other = base.clone();
+    other.bed.height = 0.036;
+    assert_ne!(sample_key(&other), key);
+    let mut other = base.clone();
+    other.seed = 2;
+    assert_ne!(sample_key(&other), key);
+    other.bed.seed = Some(1);
+    assert_eq!(sample_key(&other), key, "bed.seed fixes the sample");
+}
