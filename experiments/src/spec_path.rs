@@ -1,8 +1,8 @@
 //! What every experiment spec shares: the error type and the dotted-path `--set` that works on
-//! the spec's JSON form, so every field is addressable without a hand-kept list.
+//! the spec's JSON form, so every field is addressable without a hand-kept list. The walk is
+//! the workspace's one dotted-path walker, `repose_api::locate_mut`, in its `Existing` mode.
 
-use std::fmt::Write as _;
-
+use repose_api::{locate_mut, PathMode, SpecPathError};
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 use serde_json::Value;
@@ -10,8 +10,9 @@ use serde_json::Value;
 /// Why a spec (or a `--set`) is not usable. The message names the path.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SpecError {
-    /// `path` does not exist; `valid` lists the keys at the level where the walk stopped.
-    #[error("unknown spec path {path:?}: no key {key:?} here (valid keys: {valid})")]
+    /// `path` does not exist; `valid` says what the level where the walk stopped offers (its
+    /// keys, or its index range).
+    #[error("unknown spec path {path:?}: no key {key:?} here ({valid})")]
     UnknownPath {
         path: String,
         key: String,
@@ -60,28 +61,18 @@ pub(crate) fn set_path<T: Serialize + DeserializeOwned>(
     let parsed: Value =
         serde_json::from_str(value).unwrap_or_else(|_| Value::String(value.to_owned()));
     let mut doc = serde_json::to_value(spec).expect("specs always serialise");
-    let mut node = &mut doc;
-    for key in path.split('.') {
-        let Value::Object(map) = node else {
-            return Err(SpecError::UnknownPath {
-                path: path.to_owned(),
-                key: key.to_owned(),
-                valid: "(none: the parent is not an object)".into(),
-            });
-        };
-        if !map.contains_key(key) {
-            let mut valid = String::new();
-            for (i, k) in map.keys().enumerate() {
-                let _ = write!(valid, "{}{k}", if i > 0 { ", " } else { "" });
-            }
-            return Err(SpecError::UnknownPath {
-                path: path.to_owned(),
-                key: key.to_owned(),
-                valid,
-            });
-        }
-        node = map.get_mut(key).expect("checked");
-    }
+    let node = locate_mut(&mut doc, path, PathMode::Existing).map_err(|e| match e {
+        SpecPathError::Missing { segment, valid, .. } => SpecError::UnknownPath {
+            path: path.to_owned(),
+            key: segment,
+            valid,
+        },
+        other => SpecError::UnknownPath {
+            path: path.to_owned(),
+            key: path.to_owned(),
+            valid: other.to_string(),
+        },
+    })?;
     *node = parsed;
     serde_json::from_value(doc).map_err(|e| SpecError::BadValue {
         path: path.to_owned(),

@@ -118,3 +118,17 @@ fn the_sample_key_follows_the_sample_inputs_only() {
     other.bed.seed = Some(1);
     assert_eq!(sample_key(&other), key, "bed.seed fixes the sample");
 }
+
+#[test]
+fn set_reaches_array_elements_by_index_and_names_the_valid_range() {
+    let mut spec = ShearSpec::fast();
+    spec.set("normal_stresses_kpa.1", "9.5").unwrap();
+    assert_eq!(spec.normal_stresses_kpa, vec![4.0, 9.5, 12.0]);
+    let before = spec.clone();
+    let e = spec.set("normal_stresses_kpa.3", "1").unwrap_err();
+    assert!(
+        matches!(&e, SpecError::UnknownPath { valid, .. } if valid.contains("0..3")),
+        "{e}"
+    );
+    assert_eq!(spec, before);
+}

@@ -86,47 +86,12 @@ pub(crate) fn natural(factors: &[Factor], coded: &[f64]) -> Vec<f64> {
 }
 
 /// Writes `value` at a dotted path, creating objects on the way (a spec override need not
-/// hold the key yet; merged over a preset it lands where the factor path points).
+/// hold the key yet; merged over a preset it lands where the factor path points): the
+/// workspace's one walker, `repose_api::locate_mut`, in its `CreateObjects` mode.
 pub(crate) fn set_path(spec: &mut Value, path: &str, value: f64) -> Result<(), String> {
-    let mut current = spec;
-    let segments: Vec<&str> = path.split('.').collect();
-    if segments.iter().any(|s| s.is_empty()) {
-        return Err(format!("path `{path}` is empty or has an empty segment"));
-    }
-    for (i, seg) in segments.iter().enumerate() {
-        let last = i + 1 == segments.len();
-        current = match current {
-            Value::Object(map) => {
-                if last {
-                    map.insert(
-                        (*seg).to_owned(),
-                        serde_json::Number::from_f64(value)
-                            .map(Value::Number)
-                            .unwrap_or(Value::Null),
-                    );
-                    return Ok(());
-                }
-                map.entry((*seg).to_owned())
-                    .or_insert_with(|| Value::Object(serde_json::Map::new()))
-            }
-            Value::Array(items) => {
-                let index: usize = seg
-                    .parse()
-                    .map_err(|_| format!("path `{path}`: `{seg}` is not an array index"))?;
-                let slot = items
-                    .get_mut(index)
-                    .ok_or_else(|| format!("path `{path}`: index {index} out of range"))?;
-                if last {
-                    *slot = serde_json::Number::from_f64(value)
-                        .map(Value::Number)
-                        .unwrap_or(Value::Null);
-                    return Ok(());
-                }
-                slot
-            }
-            _ => return Err(format!("path `{path}`: `{seg}` is under a non-object")),
-        };
-    }
+    let slot = repose_api::locate_mut(spec, path, repose_api::PathMode::CreateObjects)
+        .map_err(|e| e.to_string())?;
+    *slot = repose_api::spec_path::number(value);
     Ok(())
 }
 
