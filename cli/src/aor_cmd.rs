@@ -16,6 +16,7 @@ use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{
     measure_heap, rig_meshes, run_aor, side_view_svg, AorSpec, Control, PictureOptions,
 };
+use repose_experiments::Spec;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 

@@ -15,6 +15,7 @@ use repose_experiments::catalog::BedStore;
 use repose_experiments::drill::{
     bed_key, build_bed, run_drill_on_bed, Control, DrillSpec, StlDrill,
 };
+use repose_experiments::Spec;
 use repose_worker::FileBedStore;
 use std::io::Write;
 use std::path::PathBuf;

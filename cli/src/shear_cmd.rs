@@ -15,6 +15,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_experiments::catalog::BedStore;
 use repose_experiments::shear::{build_sample, run_shear_on_bed, sample_key, Control, ShearSpec};
+use repose_experiments::Spec;
 use repose_worker::FileBedStore;
 use std::io::Write;
 use std::path::PathBuf;

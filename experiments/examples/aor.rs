@@ -2,6 +2,7 @@
 //! experiment): `cargo run --release -p repose-experiments --example aor -- PRESET THREADS
 //! [path=value ...]`. Prints the angle, the grain and step counts and the wall time.
 
+use repose_experiments::Spec;
 use std::time::Instant;
 
 use repose_experiments::aor::{run_aor, AorSpec, Control};

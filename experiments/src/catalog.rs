@@ -5,6 +5,7 @@
 //! Specs travel as JSON because the job server stores and edits them (factor values are
 //! written at dotted paths) without knowing each kind's Rust type.
 
+use crate::Spec;
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};

@@ -12,7 +12,7 @@ pub mod replay;
 pub mod shear;
 mod spec_path;
 
-pub use spec_path::SpecError;
+pub use spec_path::{Spec, SpecError};
 
 /// Version of the DEM engine these experiments run on (recorded with results).
 pub use repose_engine::VERSION as ENGINE_VERSION;

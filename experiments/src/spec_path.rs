@@ -36,6 +36,71 @@ pub enum SpecError {
     Parse(String),
 }
 
+/// What every experiment spec offers: its presets, JSON, the dotted-path `--set` and
+/// validation. Each spec names its presets and checks its fields; the rest is shared here.
+pub trait Spec: Serialize + DeserializeOwned + Clone {
+    /// The spec's name in messages ("an AorSpec").
+    const NAME: &'static str;
+    /// The preset names [`Spec::preset`] accepts (aliases aside).
+    const PRESETS: &'static [&'static str];
+
+    /// The named preset; an unknown name is an error listing [`Spec::PRESETS`].
+    fn preset(name: &str) -> Result<Self, SpecError>
+    where
+        Self: Sized;
+
+    /// Every field checked; the error names the first bad field's path.
+    fn validate(&self) -> Result<(), SpecError>;
+
+    /// Parses a JSON spec document.
+    fn from_json(text: &str) -> Result<Self, SpecError>
+    where
+        Self: Sized,
+    {
+        parse(text, Self::NAME)
+    }
+
+    /// Pretty JSON.
+    fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("specs always serialise")
+    }
+
+    /// Sets the field at the dotted `path` to `value` (JSON if it parses as JSON, else a
+    /// string). Every field is addressable (array elements by index); unknown paths are an
+    /// error naming the path and what the level where the walk stopped offers. The spec is
+    /// unchanged on error.
+    fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError>
+    where
+        Self: Sized,
+    {
+        *self = set_path(&*self, path, value)?;
+        Ok(())
+    }
+
+    /// Applies `key=value` assignments in order; on error none is applied.
+    fn apply_assignments<'a>(
+        &mut self,
+        assignments: impl IntoIterator<Item = &'a str>,
+    ) -> Result<(), SpecError>
+    where
+        Self: Sized,
+    {
+        *self = apply_assignments(&*self, assignments)?;
+        Ok(())
+    }
+}
+
+/// The error of [`Spec::preset`] for a name it does not know.
+pub(crate) fn unknown_preset<S: Spec>(name: &str) -> SpecError {
+    invalid(
+        "preset",
+        format!(
+            "unknown preset {name:?} (presets: {})",
+            S::PRESETS.join(", ")
+        ),
+    )
+}
+
 /// A [`SpecError::Invalid`] for `path`.
 pub(crate) fn invalid(path: &str, reason: impl std::fmt::Display) -> SpecError {
     SpecError::Invalid {
@@ -53,7 +118,7 @@ pub(crate) fn parse<T: DeserializeOwned>(text: &str, type_name: &str) -> Result<
 /// `spec` with the field at the dotted `path` set to `value` (JSON if it parses as JSON, else
 /// a string). The spec is serialised, the value replaced and the result deserialised back,
 /// which type-checks the new value. Unknown paths name the valid keys where the walk stopped.
-pub(crate) fn set_path<T: Serialize + DeserializeOwned>(
+fn set_path<T: Serialize + DeserializeOwned>(
     spec: &T,
     path: &str,
     value: &str,
@@ -82,7 +147,7 @@ pub(crate) fn set_path<T: Serialize + DeserializeOwned>(
 }
 
 /// `spec` with `key=value` assignments applied in order; an error leaves nothing applied.
-pub(crate) fn apply_assignments<'a, T: Serialize + DeserializeOwned + Clone>(
+fn apply_assignments<'a, T: Serialize + DeserializeOwned + Clone>(
     spec: &T,
     assignments: impl IntoIterator<Item = &'a str>,
 ) -> Result<T, SpecError> {

@@ -8,6 +8,7 @@ use repose_experiments::aor::{
     sieve_curve_with_mean_diameter, AorSpec, FunnelGeometry, MASS_LADDER, PAPER_SAND_SIEVE_CURVE,
     PRESETS, SIZE_LADDER,
 };
+use repose_experiments::Spec;
 
 /// What each preset claims in its documentation and in issue 13: (name, grain diameter or
 /// volume-mean diameter d30 in m, mass in kg, grains ≈, on the paper's rig unscaled).

@@ -6,6 +6,7 @@
 //! The engine is deterministic, so each comparison is exactly reproducible.
 
 use repose_experiments::aor::{run_aor, AorResult, AorSpec, Control, EndedBy, RunStatus};
+use repose_experiments::Spec;
 
 fn run(spec: &AorSpec) -> AorResult {
     let mut last = 0.0;

@@ -1,6 +1,7 @@
 //! The experiment spec: presets, JSON round trip, dotted-path edits and their errors.
 
 use repose_experiments::aor::{AorSpec, Protocol, RollingSpec, SpecError};
+use repose_experiments::Spec;
 
 #[test]
 fn paper_defaults_are_table_1_and_the_calibrated_point() {

@@ -4,6 +4,7 @@
 
 mod common;
 
+use repose_experiments::Spec;
 use std::sync::OnceLock;
 
 use repose_experiments::catalog::{prepare_spec, run_experiment_with_beds, BedStore};

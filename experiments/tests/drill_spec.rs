@@ -2,6 +2,7 @@
 //! keys.
 
 use repose_experiments::aor::AorSpec;
+use repose_experiments::Spec;
 mod common;
 
 use common::fast_auger_stl;

@@ -2,6 +2,7 @@
 //! stresses). Each run takes about 40 s of wall time here (2 cores, load 2-4); the cohesionless
 //! run is shared by the tests that only read it.
 
+use repose_experiments::Spec;
 use std::sync::OnceLock;
 
 use repose_experiments::shear::{

@@ -4,6 +4,7 @@
 
 use repose_experiments::aor::AorSpec;
 use repose_experiments::shear::{sample_key, ShearSpec, SpecError, PRESETS};
+use repose_experiments::Spec;
 
 fn invalid_path(e: SpecError) -> String {
     match e {

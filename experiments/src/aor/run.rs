@@ -7,6 +7,7 @@
 //! Only grains below the funnel outlet (or below the lifted tube) are measured, so grains held up
 //! in the funnel never count as part of the heap.
 
+use crate::Spec;
 use std::time::Instant;
 
 use repose_engine::distribution::SizeDistribution;

@@ -68,7 +68,7 @@ use serde::{Deserialize, Serialize};
 
 use super::measure::MeasureSettings;
 pub use crate::spec_path::SpecError;
-use crate::spec_path::{self, invalid};
+use crate::spec_path::{invalid, unknown_preset, Spec};
 
 /// How the heap is formed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -498,57 +498,6 @@ impl AorSpec {
         spec
     }
 
-    /// One of [`PRESETS`]: `default` (alias `paper`), `fast`, `paper-scale` (0.3 kg of 2 mm),
-    /// `fine` (0.3 kg of 1 mm), the ladder members `size-2.5mm`, `size-1.5mm` (0.3 kg),
-    /// `mass-100g` (2 mm) and `paper-scale-sieve` (0.3 kg, polydisperse).
-    pub fn preset(name: &str) -> Result<AorSpec, SpecError> {
-        match name {
-            "default" | "paper" => Ok(AorSpec::paper()),
-            "fast" => Ok(AorSpec::fast()),
-            "paper-scale" => Ok(AorSpec::paper_scale()),
-            "fine" => Ok(AorSpec::paper_scale_with_grains(0.001)),
-            "size-2.5mm" => Ok(AorSpec::paper_scale_with_grains(0.0025)),
-            "size-1.5mm" => Ok(AorSpec::paper_scale_with_grains(0.0015)),
-            "mass-100g" => {
-                let mut spec = AorSpec::paper_scale();
-                spec.total_mass = 0.1;
-                Ok(spec)
-            }
-            "paper-scale-sieve" => Ok(AorSpec::paper_scale_sieve()),
-            other => Err(invalid(
-                "preset",
-                format!("unknown preset {other:?} (presets: {})", PRESETS.join(", ")),
-            )),
-        }
-    }
-
-    /// Parses a JSON spec document.
-    pub fn from_json(text: &str) -> Result<AorSpec, SpecError> {
-        spec_path::parse(text, "an AorSpec")
-    }
-
-    /// Pretty JSON.
-    pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).expect("an AorSpec always serialises")
-    }
-
-    /// Sets the field at the dotted `path` to `value` (JSON if it parses as JSON, else a string).
-    /// Every field is addressable; unknown paths are an error naming the path and the valid
-    /// keys where the walk stopped. The spec is unchanged on error.
-    pub fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError> {
-        *self = spec_path::set_path(&*self, path, value)?;
-        Ok(())
-    }
-
-    /// Applies `key=value` assignments in order; on error none is applied.
-    pub fn apply_assignments<'a>(
-        &mut self,
-        assignments: impl IntoIterator<Item = &'a str>,
-    ) -> Result<(), SpecError> {
-        *self = spec_path::apply_assignments(&*self, assignments)?;
-        Ok(())
-    }
-
     /// The engine material set (soil = material 0, steel = material 1).
     pub fn material_set(&self) -> MaterialSet {
         let mut set = self.materials.material_set(self.soil_soil, self.soil_steel);
@@ -570,10 +519,95 @@ impl AorSpec {
             self.materials.soil.density * std::f64::consts::PI / 6.0 * size.mean_cubed_diameter();
         Ok(self.total_mass / grain_mass)
     }
+}
+
+/// Checks the contact coefficients and bulk properties both soil experiments share (the engine
+/// would reject them later, without naming the spec field): restitution in (0, 1], frictions
+/// finite and >= 0, density and Young's modulus > 0, Poisson's ratio in (-1, 0.5).
+/// The error is `(dotted path, reason)`.
+pub(crate) fn check_contacts(
+    materials: &Materials,
+    soil_soil: &Interaction,
+    soil_steel: &Interaction,
+) -> Result<(), (String, String)> {
+    for (name, pair) in [("soil_soil", soil_soil), ("soil_steel", soil_steel)] {
+        let e = pair.restitution;
+        if !(e > 0.0 && e <= 1.0) {
+            return Err((
+                format!("{name}.restitution"),
+                format!("must be in (0, 1], got {e}"),
+            ));
+        }
+        for (field, v) in [
+            ("static_friction", pair.static_friction),
+            ("rolling_friction", pair.rolling_friction),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((
+                    format!("{name}.{field}"),
+                    format!("must be finite and >= 0, got {v}"),
+                ));
+            }
+        }
+        let cohesion = match pair.cohesion {
+            Cohesion::None => None,
+            Cohesion::Linear { energy_density } => Some(("energy_density", energy_density)),
+            Cohesion::Jkr { surface_energy } => Some(("surface_energy", surface_energy)),
+        };
+        if let Some((field, v)) = cohesion.filter(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err((
+                format!("{name}.cohesion.{field}"),
+                format!("must be finite and >= 0, got {v}"),
+            ));
+        }
+    }
+    for (name, m) in [("soil", &materials.soil), ("steel", &materials.steel)] {
+        for (field, v) in [("density", m.density), ("youngs_modulus", m.youngs_modulus)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((
+                    format!("materials.{name}.{field}"),
+                    format!("must be finite and > 0, got {v}"),
+                ));
+            }
+        }
+        if !(m.poisson > -1.0 && m.poisson < 0.5) {
+            return Err((
+                format!("materials.{name}.poisson"),
+                format!("must be in (-1, 0.5), got {}", m.poisson),
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl Spec for AorSpec {
+    const NAME: &'static str = "an AorSpec";
+    const PRESETS: &'static [&'static str] = &PRESETS;
+
+    /// One of [`PRESETS`]: `default` (alias `paper`), `fast`, `paper-scale` (0.3 kg of 2 mm),
+    /// `fine` (0.3 kg of 1 mm), the ladder members `size-2.5mm`, `size-1.5mm` (0.3 kg),
+    /// `mass-100g` (2 mm) and `paper-scale-sieve` (0.3 kg, polydisperse).
+    fn preset(name: &str) -> Result<AorSpec, SpecError> {
+        match name {
+            "default" | "paper" => Ok(AorSpec::paper()),
+            "fast" => Ok(AorSpec::fast()),
+            "paper-scale" => Ok(AorSpec::paper_scale()),
+            "fine" => Ok(AorSpec::paper_scale_with_grains(0.001)),
+            "size-2.5mm" => Ok(AorSpec::paper_scale_with_grains(0.0025)),
+            "size-1.5mm" => Ok(AorSpec::paper_scale_with_grains(0.0015)),
+            "mass-100g" => {
+                let mut spec = AorSpec::paper_scale();
+                spec.total_mass = 0.1;
+                Ok(spec)
+            }
+            "paper-scale-sieve" => Ok(AorSpec::paper_scale_sieve()),
+            other => Err(unknown_preset::<Self>(other)),
+        }
+    }
 
     /// Checks what the engine does not check itself (the engine validates materials, meshes and
     /// the factory when the world is built).
-    pub fn validate(&self) -> Result<(), SpecError> {
+    fn validate(&self) -> Result<(), SpecError> {
         let positive = |path: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -662,63 +696,4 @@ impl AorSpec {
         }
         Ok(())
     }
-}
-
-/// Checks the contact coefficients and bulk properties both soil experiments share (the engine
-/// would reject them later, without naming the spec field): restitution in (0, 1], frictions
-/// finite and >= 0, density and Young's modulus > 0, Poisson's ratio in (-1, 0.5).
-/// The error is `(dotted path, reason)`.
-pub(crate) fn check_contacts(
-    materials: &Materials,
-    soil_soil: &Interaction,
-    soil_steel: &Interaction,
-) -> Result<(), (String, String)> {
-    for (name, pair) in [("soil_soil", soil_soil), ("soil_steel", soil_steel)] {
-        let e = pair.restitution;
-        if !(e > 0.0 && e <= 1.0) {
-            return Err((
-                format!("{name}.restitution"),
-                format!("must be in (0, 1], got {e}"),
-            ));
-        }
-        for (field, v) in [
-            ("static_friction", pair.static_friction),
-            ("rolling_friction", pair.rolling_friction),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err((
-                    format!("{name}.{field}"),
-                    format!("must be finite and >= 0, got {v}"),
-                ));
-            }
-        }
-        let cohesion = match pair.cohesion {
-            Cohesion::None => None,
-            Cohesion::Linear { energy_density } => Some(("energy_density", energy_density)),
-            Cohesion::Jkr { surface_energy } => Some(("surface_energy", surface_energy)),
-        };
-        if let Some((field, v)) = cohesion.filter(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
-            return Err((
-                format!("{name}.cohesion.{field}"),
-                format!("must be finite and >= 0, got {v}"),
-            ));
-        }
-    }
-    for (name, m) in [("soil", &materials.soil), ("steel", &materials.steel)] {
-        for (field, v) in [("density", m.density), ("youngs_modulus", m.youngs_modulus)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err((
-                    format!("materials.{name}.{field}"),
-                    format!("must be finite and > 0, got {v}"),
-                ));
-            }
-        }
-        if !(m.poisson > -1.0 && m.poisson < 0.5) {
-            return Err((
-                format!("materials.{name}.poisson"),
-                format!("must be in (-1, 0.5), got {}", m.poisson),
-            ));
-        }
-    }
-    Ok(())
 }

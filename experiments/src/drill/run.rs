@@ -4,6 +4,7 @@
 //! Frame: z up, bin floor at z = 0, drill axis = z axis. The auger's tip starts
 //! `drill.start_clearance` above the bed's surface level and is fed `drill.depth` below it.
 
+use crate::Spec;
 use std::collections::BTreeMap;
 use std::time::Instant;
 

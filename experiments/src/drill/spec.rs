@@ -55,7 +55,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::aor::{AorSpec, Materials, RollingSpec};
 pub use crate::spec_path::SpecError;
-use crate::spec_path::{self, invalid};
+use crate::spec_path::{invalid, unknown_preset, Spec};
 
 /// The steel soil bin: an open box, floor at z = 0, centred on the drill axis (x = y = 0).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -396,46 +396,6 @@ impl DrillSpec {
         spec
     }
 
-    /// `default`, `fast` or `full`.
-    pub fn preset(name: &str) -> Result<DrillSpec, SpecError> {
-        match name {
-            "default" | "paper" => Ok(DrillSpec::paper()),
-            "fast" => Ok(DrillSpec::fast()),
-            "full" => Ok(DrillSpec::full_scale()),
-            other => Err(invalid(
-                "preset",
-                format!("unknown preset {other:?} (presets: {})", PRESETS.join(", ")),
-            )),
-        }
-    }
-
-    /// Parses a JSON spec document.
-    pub fn from_json(text: &str) -> Result<DrillSpec, SpecError> {
-        spec_path::parse(text, "a DrillSpec")
-    }
-
-    /// Pretty JSON.
-    pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).expect("a DrillSpec always serialises")
-    }
-
-    /// Sets the field at the dotted `path` to `value` (JSON if it parses as JSON, else a string).
-    /// Unknown paths are an error naming the path and the valid keys where the walk stopped; the
-    /// spec is unchanged on error.
-    pub fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError> {
-        *self = spec_path::set_path(&*self, path, value)?;
-        Ok(())
-    }
-
-    /// Applies `key=value` assignments in order; on error none is applied.
-    pub fn apply_assignments<'a>(
-        &mut self,
-        assignments: impl IntoIterator<Item = &'a str>,
-    ) -> Result<(), SpecError> {
-        *self = spec_path::apply_assignments(&*self, assignments)?;
-        Ok(())
-    }
-
     /// The engine material set (soil = material 0, steel = material 1).
     pub fn material_set(&self) -> MaterialSet {
         self.materials.material_set(self.soil_soil, self.soil_steel)
@@ -449,13 +409,6 @@ impl DrillSpec {
     /// The bed's seed.
     pub fn bed_seed(&self) -> u64 {
         self.bed.seed.unwrap_or(self.seed)
-    }
-
-    /// Checks what the engine does not check itself (materials, size distribution and mesh are
-    /// checked when the world is built). The error names the field.
-    pub fn validate(&self) -> Result<(), SpecError> {
-        self.validate_bed()?;
-        self.validate_drilling()
     }
 
     /// Checks the fields that make the bed ([`super::bed_key`]'s inputs, the wall-time cap):
@@ -666,5 +619,27 @@ pub(crate) fn max_radius(particle: &SizeDistributionSpec) -> f64 {
         SizeDistributionSpec::SieveTable { rows } => {
             0.5 * rows.iter().map(|r| r.size).fold(0.0, f64::max)
         }
+    }
+}
+
+impl Spec for DrillSpec {
+    const NAME: &'static str = "a DrillSpec";
+    const PRESETS: &'static [&'static str] = &PRESETS;
+
+    /// `default`, `fast` or `full`.
+    fn preset(name: &str) -> Result<DrillSpec, SpecError> {
+        match name {
+            "default" | "paper" => Ok(DrillSpec::paper()),
+            "fast" => Ok(DrillSpec::fast()),
+            "full" => Ok(DrillSpec::full_scale()),
+            other => Err(unknown_preset::<Self>(other)),
+        }
+    }
+
+    /// Checks what the engine does not check itself (materials, size distribution and mesh are
+    /// checked when the world is built). The error names the field.
+    fn validate(&self) -> Result<(), SpecError> {
+        self.validate_bed()?;
+        self.validate_drilling()
     }
 }

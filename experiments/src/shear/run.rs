@@ -19,6 +19,7 @@
 //! shearing) less the vertical load the upper half's walls take by friction, over the box's
 //! inside area (the nominal area, not corrected for the displacement; so is the shear stress).
 
+use crate::Spec;
 use std::time::Instant;
 
 use repose_engine::kinematics::Motion;

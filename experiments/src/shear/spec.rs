@@ -70,7 +70,7 @@ use serde::{Deserialize, Serialize};
 use crate::aor::{AorSpec, Materials, RollingSpec};
 use crate::drill::{max_radius, BedSpec, BinSpec, DrillSpec, SettleSpec};
 pub use crate::spec_path::SpecError;
-use crate::spec_path::{self, invalid};
+use crate::spec_path::{invalid, unknown_preset, Spec};
 
 /// The split box: two square steel halves of the same inside width, the lower one closed by a
 /// floor at z = 0, the upper one open at both ends and resting on it (no gap). The shear plane
@@ -261,45 +261,6 @@ impl ShearSpec {
         spec
     }
 
-    /// `default` or `fast`.
-    pub fn preset(name: &str) -> Result<ShearSpec, SpecError> {
-        match name {
-            "default" | "paper" => Ok(ShearSpec::paper()),
-            "fast" => Ok(ShearSpec::fast()),
-            other => Err(invalid(
-                "preset",
-                format!("unknown preset {other:?} (presets: {})", PRESETS.join(", ")),
-            )),
-        }
-    }
-
-    /// Parses a JSON spec document.
-    pub fn from_json(text: &str) -> Result<ShearSpec, SpecError> {
-        spec_path::parse(text, "a ShearSpec")
-    }
-
-    /// Pretty JSON.
-    pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).expect("a ShearSpec always serialises")
-    }
-
-    /// Sets the field at the dotted `path` to `value` (JSON if it parses as JSON, else a string).
-    /// Unknown paths are an error naming the path and the valid keys where the walk stopped; the
-    /// spec is unchanged on error.
-    pub fn set(&mut self, path: &str, value: &str) -> Result<(), SpecError> {
-        *self = spec_path::set_path(&*self, path, value)?;
-        Ok(())
-    }
-
-    /// Applies `key=value` assignments in order; on error none is applied.
-    pub fn apply_assignments<'a>(
-        &mut self,
-        assignments: impl IntoIterator<Item = &'a str>,
-    ) -> Result<(), SpecError> {
-        *self = spec_path::apply_assignments(&*self, assignments)?;
-        Ok(())
-    }
-
     /// The engine material set (soil = material 0, steel = material 1).
     pub fn material_set(&self) -> MaterialSet {
         self.materials.material_set(self.soil_soil, self.soil_steel)
@@ -346,9 +307,33 @@ impl ShearSpec {
         d.seed = self.seed;
         d
     }
+}
+
+/// A drilling-bed path as this spec names it (`bin.*` is `box.*`, `bed.depth` is `bed.height`).
+fn rename_bed_path(path: &str) -> String {
+    match path {
+        "bed.depth" => "bed.height".to_owned(),
+        "bin.size_x" | "bin.size_y" => "box.side".to_owned(),
+        "bin.height" => "box.upper_height".to_owned(),
+        other => other.to_owned(),
+    }
+}
+
+impl Spec for ShearSpec {
+    const NAME: &'static str = "a ShearSpec";
+    const PRESETS: &'static [&'static str] = &PRESETS;
+
+    /// `default` or `fast`.
+    fn preset(name: &str) -> Result<ShearSpec, SpecError> {
+        match name {
+            "default" | "paper" => Ok(ShearSpec::paper()),
+            "fast" => Ok(ShearSpec::fast()),
+            other => Err(unknown_preset::<Self>(other)),
+        }
+    }
 
     /// Checks what the engine does not check itself. The error names the field.
-    pub fn validate(&self) -> Result<(), SpecError> {
+    fn validate(&self) -> Result<(), SpecError> {
         let positive = |path: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -461,15 +446,5 @@ impl ShearSpec {
             SpecError::Invalid { path, reason } => invalid(&rename_bed_path(&path), reason),
             other => other,
         })
-    }
-}
-
-/// A drilling-bed path as this spec names it (`bin.*` is `box.*`, `bed.depth` is `bed.height`).
-fn rename_bed_path(path: &str) -> String {
-    match path {
-        "bed.depth" => "bed.height".to_owned(),
-        "bin.size_x" | "bin.size_y" => "box.side".to_owned(),
-        "bin.height" => "box.upper_height".to_owned(),
-        other => other.to_owned(),
     }
 }
