@@ -11,7 +11,6 @@
 use crate::sim::write_file;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{
     measure_heap, rig_meshes, run_aor, side_view_svg, AorSpec, Control, PictureOptions,
@@ -90,26 +89,9 @@ pub fn run(args: &AorArgs) -> Result<()> {
         return measure_file(&spec, file, args.out.as_deref());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    let threads = match args.threads {
-        Some(0) => bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("cannot start the thread pool")?;
-
-    let bar = if args.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(1000)
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg}")
-            .expect("valid template"),
-    );
+    crate::local_run::create_dirs([out.as_path()])?;
+    let pool = crate::local_run::thread_pool(args.threads)?;
+    let bar = crate::local_run::progress_bar(args.quiet, " {msg}");
     let run = pool.install(|| {
         run_aor(&spec, &mut |p| {
             bar.set_position((p.fraction * 1000.0) as u64);

@@ -8,9 +8,8 @@
 //! key (`<key>.json`) and reused by later runs with the same bed parameters.
 
 use crate::sim::write_file;
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use repose_experiments::catalog::BedStore;
 use repose_experiments::drill::{
     bed_key, build_bed, run_drill_on_bed, Control, DrillSpec, StlDrill,
@@ -80,29 +79,9 @@ pub fn run(args: &DrillArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    let threads = match args.threads {
-        Some(0) => bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    if let Some(dir) = &args.bed_cache {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("cannot start the thread pool")?;
-
-    let bar = if args.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(1000)
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% {msg}")
-            .expect("valid template"),
-    );
+    crate::local_run::create_dirs(std::iter::once(out.as_path()).chain(args.bed_cache.as_deref()))?;
+    let pool = crate::local_run::thread_pool(args.threads)?;
+    let bar = crate::local_run::progress_bar(args.quiet, " {msg}");
     let key = bed_key(&spec);
     let mut store = args.bed_cache.as_ref().map(FileBedStore::new);
     let cached = store.as_mut().and_then(|s| s.get(&key));

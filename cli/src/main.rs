@@ -9,6 +9,7 @@ mod client;
 mod design_cmd;
 mod drill_cmd;
 mod levels;
+mod local_run;
 mod server_cmd;
 mod shear_cmd;
 mod sim;

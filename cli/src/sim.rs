@@ -1,8 +1,7 @@
 //! `repose sim SCENE --out DIR`: run one scene file with a progress bar and write the results.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use repose_engine::output::{
     write_geometry_csv, write_mesh_vtk, write_particles_csv, write_particles_vtk,
 };
@@ -82,30 +81,15 @@ pub fn run(args: &SimArgs) -> Result<()> {
             w.time_step, w.impact_speed, w.steps_per_contact, w.contact_time
         );
     }
-    let threads = match args.threads {
-        Some(0) => bail!("--threads must be at least 1"),
-        Some(t) => t,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-    };
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("cannot start the thread pool")?;
+    crate::local_run::create_dirs([args.out.as_path()])?;
+    let pool = crate::local_run::thread_pool(args.threads)?;
 
     let mut world = prepared.world;
     let names = prepared.geometry_names;
     let duration = prepared.duration;
     let snapshot_every = scene.output.snapshot_interval;
     let started = Instant::now();
-    let bar = ProgressBar::new(1000);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:40} {percent:>3}% t={msg} (eta {eta})",
-        )
-        .expect("valid template"),
-    );
+    let bar = crate::local_run::progress_bar(false, " t={msg} (eta {eta})");
     let mut snapshots = 0usize;
     let mut next_snapshot = snapshot_every.map(|_| 0.0);
     pool.install(|| -> Result<()> {
@@ -157,7 +141,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
         time_step_s: prepared.time_step,
         wall_time_s: wall,
         particle_steps_per_s: 0.0,
-        threads,
+        threads: pool.current_num_threads(),
         snapshots,
         out: args.out.clone(),
     };

@@ -1,0 +1,45 @@
+//! What every local simulation command (`repose aor`, `drill`, `shear`, `sim`) sets up the same
+//! way: its output folders, a thread pool of `--threads` threads and a progress bar.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Creates each folder (and its parents) if it does not exist.
+pub fn create_dirs<'a>(dirs: impl IntoIterator<Item = &'a Path>) -> Result<()> {
+    for dir in dirs {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    Ok(())
+}
+
+/// A pool of `--threads` threads (all cores without the flag; 0 is refused).
+pub fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
+    let threads = match threads {
+        Some(0) => bail!("--threads must be at least 1"),
+        Some(t) => t,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("cannot start the thread pool")
+}
+
+/// A progress bar of 1000 steps (hidden with `quiet`): spinner, elapsed time, bar and percent,
+/// then `message_template` (e.g. `" {msg}"`, or `" t={msg} (eta {eta})"`).
+pub fn progress_bar(quiet: bool, message_template: &str) -> ProgressBar {
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(1000)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{spinner}} [{{elapsed_precise}}] {{bar:40}} {{percent:>3}}%{message_template}"
+        ))
+        .expect("valid template"),
+    );
+    bar
+}
