@@ -104,20 +104,42 @@ pub(super) fn chunk_contacts(
     loads: &mut [(Vec3, Vec3)],
 ) {
     let base = first_pair[c.start] as usize;
-    let own = |k: usize| {
+    let lanes = ctx.pair_path == PairPath::Lanes;
+    if lanes {
+        super::lanes::chunk_pairs(
+            ctx,
+            r,
+            c.start..c.start + c.force.len(),
+            first_pair,
+            c.partner,
+            c.tangential,
+            c.share,
+            &mut scratch.pairs,
+        );
+    }
+    let mut t = 0;
+    for k in 0..c.force.len() {
         let i = c.start + k;
-        first_pair[i] as usize - base..first_pair[i + 1] as usize - base
-    };
-    if ctx.pair_path == PairPath::Scalar {
-        for k in 0..c.force.len() {
-            let i = c.start + k;
-            let range = own(k);
+        let sums = if lanes {
+            // The lane results of i's touching pairs, in pair order.
+            let (mut f, mut tq, mut moment) = (ctx.gravity * r.mass[i], Vec3::zeros(), 0.0);
+            let stop = scratch.pairs.end[k] as usize;
+            while t < stop {
+                let (force, torque, m) = scratch.pairs.result(t);
+                f += force;
+                tq -= torque;
+                moment += m;
+                t += 1;
+            }
+            (f, tq, moment)
+        } else {
+            let range = first_pair[i] as usize - base..first_pair[i + 1] as usize - base;
             let rolling: &mut [Vec3] = if c.rolling.is_empty() {
                 &mut []
             } else {
                 &mut c.rolling[range.clone()]
             };
-            let (f, tq, moment) = pairs_scalar(
+            pairs_scalar(
                 ctx,
                 r,
                 i,
@@ -125,41 +147,9 @@ pub(super) fn chunk_contacts(
                 &mut c.tangential[range.clone()],
                 rolling,
                 &mut c.share[range],
-            );
-            let (f, tq, moment) =
-                geometry_contacts(ctx, r, i, (f, tq, moment), &mut c.walls[k], scratch, loads);
-            c.force[k] = f;
-            c.torque[k] = tq;
-            c.moment[k] = moment;
-        }
-        return;
-    }
-    super::lanes::chunk_pairs(
-        ctx,
-        r,
-        c.start..c.start + c.force.len(),
-        first_pair,
-        c.partner,
-        c.tangential,
-        c.share,
-        &mut scratch.pairs,
-    );
-    let mut t = 0;
-    for k in 0..c.force.len() {
-        let i = c.start + k;
-        let mut f = ctx.gravity * r.mass[i];
-        let mut tq = Vec3::zeros();
-        let mut moment = 0.0;
-        let stop = scratch.pairs.end[k] as usize;
-        while t < stop {
-            let (force, torque, m) = scratch.pairs.result(t);
-            f += force;
-            tq -= torque;
-            moment += m;
-            t += 1;
-        }
-        let (f, tq, moment) =
-            geometry_contacts(ctx, r, i, (f, tq, moment), &mut c.walls[k], scratch, loads);
+            )
+        };
+        let (f, tq, moment) = geometry_contacts(ctx, r, i, sums, &mut c.walls[k], scratch, loads);
         c.force[k] = f;
         c.torque[k] = tq;
         c.moment[k] = moment;
