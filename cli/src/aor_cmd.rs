@@ -61,11 +61,8 @@ pub struct AorArgs {
 }
 
 fn effective_spec(args: &AorArgs) -> Result<AorSpec> {
-    let mut spec = match &args.spec {
-        Some(path) => crate::sim::spec_over_preset(path, &AorSpec::preset(&args.preset)?)?,
-        None => AorSpec::preset(&args.preset)?,
-    };
-    spec.apply_assignments(args.set.iter().map(String::as_str))?;
+    let spec: AorSpec =
+        crate::local_run::spec_from_args(&args.preset, args.spec.as_deref(), &args.set)?;
     spec.validate()?;
     Ok(spec)
 }

@@ -58,11 +58,8 @@ pub struct DrillArgs {
 }
 
 fn effective_spec(args: &DrillArgs) -> Result<DrillSpec> {
-    let mut spec = match &args.spec {
-        Some(path) => crate::sim::spec_over_preset(path, &DrillSpec::preset(&args.preset)?)?,
-        None => DrillSpec::preset(&args.preset)?,
-    };
-    spec.apply_assignments(args.set.iter().map(String::as_str))?;
+    let mut spec: DrillSpec =
+        crate::local_run::spec_from_args(&args.preset, args.spec.as_deref(), &args.set)?;
     if let Some(path) = &args.stl {
         let bytes =
             std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;

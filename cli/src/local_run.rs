@@ -1,10 +1,24 @@
 //! What every local simulation command (`repose aor`, `drill`, `shear`, `sim`) sets up the same
-//! way: its output folders, a thread pool of `--threads` threads and a progress bar.
+//! way: its spec from `--preset`/`--spec`/`--set`, its output folders, a thread pool of
+//! `--threads` threads and a progress bar.
 
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use repose_experiments::Spec;
+
+/// The spec `--preset`, `--spec FILE` (merged over the preset) and `--set` assignments give,
+/// in that order; not yet validated (a command may add to it first).
+pub fn spec_from_args<S: Spec>(preset: &str, file: Option<&Path>, set: &[String]) -> Result<S> {
+    let base = S::preset(preset)?;
+    let mut spec = match file {
+        Some(path) => crate::sim::spec_over_preset(path, &base)?,
+        None => base,
+    };
+    spec.apply_assignments(set.iter().map(String::as_str))?;
+    Ok(spec)
+}
 
 /// Creates each folder (and its parents) if it does not exist.
 pub fn create_dirs<'a>(dirs: impl IntoIterator<Item = &'a Path>) -> Result<()> {

@@ -52,11 +52,8 @@ pub struct ShearArgs {
 }
 
 fn effective_spec(args: &ShearArgs) -> Result<ShearSpec> {
-    let mut spec = match &args.spec {
-        Some(path) => crate::sim::spec_over_preset(path, &ShearSpec::preset(&args.preset)?)?,
-        None => ShearSpec::preset(&args.preset)?,
-    };
-    spec.apply_assignments(args.set.iter().map(String::as_str))?;
+    let spec: ShearSpec =
+        crate::local_run::spec_from_args(&args.preset, args.spec.as_deref(), &args.set)?;
     spec.validate()?;
     Ok(spec)
 }
