@@ -11,6 +11,7 @@ pub mod progress;
 pub mod replay;
 pub mod shear;
 mod spec_path;
+mod svg;
 
 pub use spec_path::{Spec, SpecError};
 

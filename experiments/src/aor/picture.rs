@@ -11,6 +11,8 @@ use super::measure::{AngleOfRepose, FlankFit, ProjectionPlane};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
+use crate::svg::escape;
+
 /// How to draw the side view.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -409,22 +411,6 @@ fn axes(
         svg,
         r#"<text x="{lx:.2}" y="{ly:.2}" text-anchor="middle" transform="rotate(-90 {lx:.2} {ly:.2})">z (mm)</text>"#
     );
-}
-
-/// XML text escaping for the few characters that matter.
-fn escape(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    for c in text.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&apos;"),
-            _ => out.push(c),
-        }
-    }
-    out
 }
 
 #[cfg(test)]

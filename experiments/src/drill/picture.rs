@@ -3,6 +3,8 @@
 
 use std::fmt::Write as _;
 
+use crate::svg::{escape, header, tick_step, trim};
+
 use super::measure::HeightField;
 use super::run::{DrillResult, DrillRun};
 
@@ -10,38 +12,6 @@ const ML: f64 = 70.0;
 const MR: f64 = 30.0;
 const MT: f64 = 60.0;
 const MB: f64 = 50.0;
-
-fn header(w: f64, h: f64) -> String {
-    format!(
-        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<svg xmlns=\"http://www.w3.org/2000/svg\" \
-         width=\"{w:.0}\" height=\"{h:.0}\" viewBox=\"0 0 {w:.0} {h:.0}\" \
-         font-family=\"sans-serif\" font-size=\"13\">\n<rect width=\"100%\" height=\"100%\" \
-         fill=\"white\"/>\n"
-    )
-}
-
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
-/// A "nice" tick step for a span.
-fn tick_step(span: f64, target: usize) -> f64 {
-    let raw = span / target.max(1) as f64;
-    let mag = 10f64.powf(raw.log10().floor());
-    let norm = raw / mag;
-    let nice = if norm < 1.5 {
-        1.0
-    } else if norm < 3.5 {
-        2.0
-    } else if norm < 7.5 {
-        5.0
-    } else {
-        10.0
-    };
-    nice * mag
-}
 
 /// Section y = 0 through the axis: grains the plane cuts (their cut circles), the bin, the
 /// original surface (dashed), the settled surface profile (red), the auger outline at full
@@ -328,14 +298,4 @@ pub fn forces_svg(result: &DrillResult) -> String {
     }
     s.push_str("</svg>\n");
     s
-}
-
-fn trim(v: f64) -> String {
-    let s = format!("{v:.3}");
-    let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s == "-0" {
-        "0".to_owned()
-    } else {
-        s.to_owned()
-    }
 }

@@ -4,6 +4,8 @@
 
 use std::fmt::Write as _;
 
+use crate::svg::{escape, header, tick_step, trim};
+
 use super::run::ShearResult;
 
 const ML: f64 = 70.0;
@@ -17,48 +19,6 @@ const HEIGHT: f64 = 500.0;
 const COLOURS: [&str; 6] = [
     "#1f5fa8", "#d35400", "#27ae60", "#8e44ad", "#c0392b", "#7f8c8d",
 ];
-
-fn header() -> String {
-    format!(
-        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<svg xmlns=\"http://www.w3.org/2000/svg\" \
-         width=\"{WIDTH:.0}\" height=\"{HEIGHT:.0}\" viewBox=\"0 0 {WIDTH:.0} {HEIGHT:.0}\" \
-         font-family=\"sans-serif\" font-size=\"13\">\n<rect width=\"100%\" height=\"100%\" \
-         fill=\"white\"/>\n"
-    )
-}
-
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
-/// A "nice" tick step for a span.
-fn tick_step(span: f64, target: usize) -> f64 {
-    let raw = span / target.max(1) as f64;
-    let mag = 10f64.powf(raw.log10().floor());
-    let norm = raw / mag;
-    let nice = if norm < 1.5 {
-        1.0
-    } else if norm < 3.5 {
-        2.0
-    } else if norm < 7.5 {
-        5.0
-    } else {
-        10.0
-    };
-    nice * mag
-}
-
-fn trim(v: f64) -> String {
-    let s = format!("{v:.3}");
-    let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s == "-0" {
-        "0".to_owned()
-    } else {
-        s.to_owned()
-    }
-}
 
 /// The plot area mapping data (x in `[x0, x1]`, y in `[y0, y1]`) to the page.
 struct Frame {
@@ -134,7 +94,7 @@ impl Frame {
 /// Shear stress (kPa) against displacement (mm), one curve per normal stress, each peak
 /// marked.
 pub fn curves_svg(result: &ShearResult) -> String {
-    let mut s = header();
+    let mut s = header(WIDTH, HEIGHT);
     let title = match (result.cohesion_kpa, result.friction_angle_deg) {
         (Some(c), Some(phi)) => {
             format!(
@@ -205,7 +165,7 @@ pub fn curves_svg(result: &ShearResult) -> String {
 /// The Mohr-Coulomb lines τ = c + σ tan φ through the peaks (filled points, solid line) and the
 /// residuals (open points, dashed line), against the normal stress on the shear plane.
 pub fn strength_svg(result: &ShearResult) -> String {
-    let mut s = header();
+    let mut s = header(WIDTH, HEIGHT);
     let title = match &result.peak_fit {
         Some(f) => format!(
             "Mohr-Coulomb: c = {:.2} kPa, φ = {:.1}° (R² = {:.3}, {} stresses)",
