@@ -1,8 +1,9 @@
 //! Neighbour search: linked cells → a Verlet half pair list with a skin.
 //!
-//! The list holds every pair (i, j), i < j, whose surfaces are closer than `skin`. It stays
-//! valid until some particle has moved more than skin/2 since the build (then two particles
-//! can have closed the gap by at most `skin`). Pairs are grouped by their lower index `i`
+//! Each particle has its own half skin h (chosen from its speed at the build, see
+//! `particles::BuildMark`). The list holds every pair (i, j), i < j, whose surfaces are closer
+//! than h_i + h_j. It stays valid until some particle has moved more than its own h since the
+//! build (until then the gap of a pair left out has closed by less than h_i + h_j). Pairs are grouped by their lower index `i`
 //! (CSR: `first_pair[i]..first_pair[i+1]`), so the contact loop can run over particles, each
 //! owning its pairs, with no write conflicts. Each pair carries its contact history; at a
 //! rebuild the histories are carried over by matching the pair's particles through their index
@@ -163,7 +164,7 @@ impl PairList {
 
     /// Find the history of the pair (old index a, old index b) in this (previous) list.
     #[inline]
-    fn find(&self, a: u32, b: u32) -> Option<(usize, bool)> {
+    pub(crate) fn find(&self, a: u32, b: u32) -> Option<(usize, bool)> {
         let (lo, hi, swapped) = if a < b { (a, b, false) } else { (b, a, true) };
         let lo = lo as usize;
         if lo + 1 >= self.first_pair.len() {
@@ -343,13 +344,14 @@ impl CellGrid {
     }
 }
 
-/// Build the half pair list for the current particle positions (surface gap < `skin`), carrying
+/// Build the half pair list for the current particle positions (surface gap < h_i + h_j, the
+/// particles' half skins), carrying
 /// over histories from `previous` via `particles.index_at_build`.
 pub(crate) fn build_pair_list(
     particles: &Particles,
     domain: &Domain,
     grid: &CellGrid,
-    skin: f64,
+    half_skin: &[f32],
     with_rolling_history: bool,
     previous: &PairList,
 ) -> PairList {
@@ -383,7 +385,7 @@ pub(crate) fn build_pair_list(
             for i in range {
                 let start = out.partner.len();
                 let pi = positions[i];
-                let ri = radius[i];
+                let ri = radius[i] + half_skin[i] as f64;
                 let cell = grid.cell_of(pi);
                 if cell != cells_of {
                     grid.neighbour_cells(pi, &mut cells);
@@ -401,7 +403,7 @@ pub(crate) fn build_pair_list(
                         } else {
                             raw
                         };
-                        let reach = ri + radius[j] + skin;
+                        let reach = ri + (radius[j] + half_skin[j] as f64);
                         if d.norm_squared() < reach * reach {
                             let wraps = if d == raw { 0 } else { WRAPS };
                             out.partner.push(j as u32 | wraps);

@@ -52,10 +52,9 @@ pub struct Particles {
     /// 1 / I with I = 2/5 m R² (solid sphere).
     pub inverse_inertia: Vec<f64>,
     pub material: Vec<MaterialId>,
-    /// Position at the last neighbour build (for the skin criterion). Single precision is
-    /// plenty (its rounding, ~1e-7 of the coordinates, is far below the skin) and saves 12
-    /// bytes per particle.
-    pub(crate) position_at_build: Vec<[f32; 3]>,
+    /// Where each particle was at the last neighbour build and how far it may move before
+    /// the pair list is stale (its own half skin).
+    pub(crate) build_mark: Vec<BuildMark>,
     /// Index at the last neighbour build, or [`NEW_PARTICLE`]: lets the rebuild find each
     /// particle's previous contact histories after removal and re-sorting.
     pub(crate) index_at_build: Vec<u32>,
@@ -96,7 +95,10 @@ impl Particles {
         self.inverse_inertia
             .push(1.0 / (0.4 * mass * spec.radius * spec.radius));
         self.material.push(spec.material);
-        self.position_at_build.push(single(spec.position));
+        self.build_mark.push(BuildMark {
+            position: single(spec.position),
+            half_skin: 0.0,
+        });
         self.index_at_build.push(NEW_PARTICLE);
         self.wall_history.push(Vec::new());
     }
@@ -119,7 +121,7 @@ impl Particles {
         apply(&mut self.mass, order);
         apply(&mut self.inverse_inertia, order);
         apply(&mut self.material, order);
-        apply(&mut self.position_at_build, order);
+        apply(&mut self.build_mark, order);
         apply(&mut self.index_at_build, order);
         let mut old = std::mem::take(&mut self.wall_history);
         self.wall_history = order
@@ -156,7 +158,7 @@ impl Particles {
             * (8 + 5 * std::mem::size_of::<Vec3>()
                 + 3 * 8
                 + std::mem::size_of::<MaterialId>()
-                + std::mem::size_of::<[f32; 3]>()
+                + std::mem::size_of::<BuildMark>()
                 + 4
                 + std::mem::size_of::<Vec<WallHistory>>())
             + self
@@ -164,6 +166,28 @@ impl Particles {
                 .iter()
                 .map(|w| w.len() * std::mem::size_of::<WallHistory>())
                 .sum::<usize>()
+    }
+}
+
+/// A particle's state at the last neighbour build: its position, and its half skin h (it may
+/// move up to h before the list is stale). Each particle has its own skin, chosen from its
+/// speed: the list holds a pair whose surfaces are closer than h_i + h_j, so the gap of a pair
+/// left out cannot close while both particles stay within their half skins. A fast stream
+/// then gets wide skins (few rebuilds) while the settled bed it falls on keeps thin ones (few
+/// listed pairs). Single precision is plenty (its rounding, ~1e-7 of the coordinates, is far
+/// below any skin), and the pair test uses the same rounded h as the move test.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct BuildMark {
+    pub position: [f32; 3],
+    pub half_skin: f32,
+}
+
+impl BuildMark {
+    /// Whether a particle now at `x` has moved further than its half skin since the build.
+    #[inline]
+    pub fn moved_too_far(&self, x: Vec3) -> bool {
+        let h = self.half_skin as f64;
+        (x - double(self.position)).norm_squared() > h * h
     }
 }
 

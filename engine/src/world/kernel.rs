@@ -61,7 +61,6 @@ pub(super) fn with_scratch<T>(f: impl FnOnce(&mut Scratch) -> T) -> T {
 pub(super) struct GatherContext {
     pub(super) dt: f64,
     pub(super) domain: Domain,
-    pub(super) half_skin2: f64,
     pub(super) cdt: bool,
     pub(super) after: AfterForces,
 }
@@ -471,7 +470,7 @@ pub(super) fn gather_particle(
     shares: &[PartnerShare],
     mass: f64,
     inv_i: f64,
-    position_at_build: [f32; 3],
+    mark: BuildMark,
     s: ParticleState,
 ) -> bool {
     let dt = g.dt;
@@ -505,8 +504,7 @@ pub(super) fn gather_particle(
             // No periodic wrap here: positions move continuously between builds (see
             // `WRAPS`), and the rebuild wraps them.
             *x += *v * dt;
-            let moved = *x - double(position_at_build);
-            moved.norm_squared() > g.half_skin2 || domain.is_outside(*x)
+            mark.moved_too_far(*x) || domain.is_outside(*x)
         }
         AfterForces::HalfKick => {
             *v += force * (0.5 * dt / mass);

@@ -57,7 +57,7 @@ use crate::neighbor::{
     build_pair_list, CellGrid, Domain, PairList, PartnerShare, CHUNK, IN_CONTACT, PARTNER_INDEX,
     WRAPS,
 };
-use crate::particles::{double, single, ParticleSpec, Particles, WallHistory};
+use crate::particles::{single, BuildMark, ParticleSpec, Particles, WallHistory};
 
 /// Simulation settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -75,11 +75,11 @@ pub struct WorldConfig {
     /// step still travels ~5 steps per rebuild.
     pub skin_fraction: f64,
     /// Upper bound of the adaptive skin, as a fraction of the largest particle diameter. At a
-    /// rebuild the skin is chosen so that the fastest particle needs about
-    /// `rebuild_target_steps` steps to cross half of it, within [`Self::skin_fraction`,
+    /// rebuild each particle gets its own skin, chosen so that at its present speed it needs
+    /// about `rebuild_target_steps` steps to cross half of it, within [`Self::skin_fraction`,
     /// `skin_fraction_max`]: a fast stream (a pour) then rebuilds every ~10 steps instead of
-    /// every 2-3, while a slow bed keeps the thin skin (fewer pairs). Equal to
-    /// `skin_fraction` (or `rebuild_target_steps` 0): a fixed skin.
+    /// every 2-3, while the slow bed it falls on keeps thin skins (fewer listed pairs). Equal
+    /// to `skin_fraction` (or `rebuild_target_steps` 0): one fixed skin.
     #[serde(default = "default_skin_fraction_max")]
     pub skin_fraction_max: f64,
     /// See [`Self::skin_fraction_max`]; 0 disables the adaptive skin.
@@ -856,5 +856,103 @@ mod tests {
             assert_eq!(one, two, "{rolling:?}");
             assert_eq!(floor_one, floor_two);
         }
+    }
+
+    /// Per-particle skins (`BuildMark`): a fast stream falls into a slow bed; after every
+    /// step every touching pair (brute force over all pairs) is in the pair list, and the
+    /// stream's skins are wider than the bed's.
+    #[test]
+    fn per_particle_skins_never_miss_a_touching_pair() {
+        let materials = frictional_paper_table(0.4);
+        let soil = materials.id("soil").unwrap();
+        let r = 1e-3;
+        let side = 0.012;
+        let domain = Domain {
+            min: Vec3::new(0.0, 0.0, -0.01),
+            max: Vec3::new(side, side, 0.1),
+            periodic_x: true,
+            periodic_y: true,
+        };
+        let dt = materials.rayleigh_time_step(soil, r, 0.2);
+        let steel = materials.id("steel").unwrap();
+        let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
+        let floor = TriMesh::new(
+            vec![
+                Vec3::new(-0.01, -0.01, 0.0),
+                Vec3::new(0.03, -0.01, 0.0),
+                Vec3::new(0.03, 0.03, 0.0),
+                Vec3::new(-0.01, 0.03, 0.0),
+            ],
+            vec![[0, 1, 2], [0, 2, 3]],
+        )
+        .unwrap();
+        world
+            .add_geometry(Geometry {
+                name: "floor".into(),
+                mesh: floor,
+                motion: Motion::stationary(Pose::identity()),
+                material: steel,
+            })
+            .unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let per = 5;
+        let spacing = side / per as f64;
+        let mut add = |k: usize, z0: f64, speed: f64| {
+            let (x, y, z) = (k % per, (k / per) % per, k / (per * per));
+            let jitter = Vec3::new(rng.gen(), rng.gen(), 0.0) * (0.1 * spacing);
+            let position = Vec3::new(x as f64, y as f64, z as f64 * 0.9) * spacing
+                + Vec3::new(0.5 * spacing, 0.5 * spacing, z0)
+                + jitter;
+            let velocity = Vec3::new(rng.gen::<f64>() - 0.5, rng.gen::<f64>() - 0.5, 0.0) * 0.02
+                + Vec3::new(0.0, 0.0, -speed);
+            world
+                .add_particle(ParticleSpec {
+                    position,
+                    velocity,
+                    angular_velocity: Vec3::zeros(),
+                    radius: r * (0.9 + 0.1 * rng.gen::<f64>()),
+                    material: soil,
+                })
+                .unwrap();
+        };
+        // A slow bed of 4 layers from z = r and a fast stream of 2 layers 6 mm above it.
+        for k in 0..4 * per * per {
+            add(k, r, 0.0);
+        }
+        for k in 0..2 * per * per {
+            add(k, 0.016, 2.5);
+        }
+        let mut widest = (f32::INFINITY, 0.0f32);
+        let mut most_contacts = 0;
+        for step in 0..300 {
+            world.step();
+            most_contacts = most_contacts.max(world.contact_count());
+            let p = &world.particles;
+            let skins = p.build_mark.iter().map(|m| m.half_skin);
+            let (lo, hi) = skins.fold((f32::INFINITY, 0.0f32), |(lo, hi), h| {
+                (lo.min(h), hi.max(h))
+            });
+            if hi / lo > widest.1 / widest.0 {
+                widest = (lo, hi);
+            }
+            for i in 0..p.len() {
+                for j in i + 1..p.len() {
+                    let d = domain.minimum_image(p.position[j] - p.position[i]);
+                    if d.norm() < p.radius[i] + p.radius[j] {
+                        assert!(
+                            world.pairs.find(i as u32, j as u32).is_some(),
+                            "step {step}: touching pair ({i}, {j}) is not listed"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(most_contacts > 100, "{most_contacts} contacts at most");
+        assert!(
+            widest.1 > 2.0 * widest.0,
+            "the stream's skins ({}) should be wider than the bed's ({})",
+            widest.1,
+            widest.0
+        );
     }
 }

@@ -29,7 +29,6 @@ impl World {
         GatherContext {
             dt: self.config.time_step,
             domain: self.config.domain,
-            half_skin2: 0.25 * self.skin * self.skin,
             cdt: matches!(
                 self.config.rolling_model,
                 RollingModel::ConstantDirectionalTorque
@@ -121,7 +120,7 @@ impl World {
                     &pl.partner_share,
                     p.mass[i],
                     p.inverse_inertia[i],
-                    p.position_at_build[i],
+                    p.build_mark[i],
                     state,
                 );
             }
@@ -261,7 +260,7 @@ impl World {
         let p = &mut self.particles;
         let mass = &p.mass;
         let inverse_inertia = &p.inverse_inertia;
-        let position_at_build = &p.position_at_build;
+        let build_mark = &p.build_mark;
         let flags: Vec<bool> = p
             .force
             .par_chunks_mut(CHUNK)
@@ -295,7 +294,7 @@ impl World {
                         &pairs.partner_share,
                         mass[i],
                         inverse_inertia[i],
-                        position_at_build[i],
+                        build_mark[i],
                         state,
                     );
                 }

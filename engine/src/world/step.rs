@@ -72,50 +72,60 @@ impl World {
             self.removed += outside as u64;
         }
         let max_radius = p.radius.iter().copied().fold(0.0, f64::max);
-        self.skin = self.adaptive_skin(max_radius);
+        let half_skin = self.half_skins(max_radius);
+        self.skin = 2.0 * half_skin.iter().copied().fold(0.0f32, f32::max) as f64;
         let p = &mut self.particles;
         let cell_size = 2.0 * max_radius + self.skin;
         let mut grid = CellGrid::build(&domain, cell_size, &p.position);
         let sort_every = self.config.sort_every_rebuilds as u64;
-        if sort_every > 0 && self.rebuilds % sort_every == 0 {
+        let half_skin = if sort_every > 0 && self.rebuilds % sort_every == 0 {
             p.permute(&grid.sorted);
-            grid.sorted = (0..p.len() as u32).collect();
-        }
+            let sorted = std::mem::replace(&mut grid.sorted, (0..p.len() as u32).collect());
+            sorted.iter().map(|&k| half_skin[k as usize]).collect()
+        } else {
+            half_skin
+        };
         let with_rolling = matches!(
             self.config.rolling_model,
             RollingModel::ElasticPlasticSpringDashpot { .. }
         );
-        self.pairs = build_pair_list(p, &domain, &grid, self.skin, with_rolling, &self.pairs);
+        self.pairs = build_pair_list(p, &domain, &grid, &half_skin, with_rolling, &self.pairs);
         for (k, index) in p.index_at_build.iter_mut().enumerate() {
             *index = k as u32;
         }
-        p.position_at_build = p.position.iter().map(|&x| single(x)).collect();
+        p.build_mark = p
+            .position
+            .iter()
+            .zip(&half_skin)
+            .map(|(&x, &half_skin)| BuildMark {
+                position: single(x),
+                half_skin,
+            })
+            .collect();
         self.rolling_moment.resize(p.len(), 0.0);
         self.build_wall_candidates(t);
         self.rebuilds += 1;
         self.needs_rebuild = false;
     }
 
-    /// The skin for the next pair list: wide enough that the fastest particle needs about
-    /// `rebuild_target_steps` steps to move half of it, within the configured fractions of the
-    /// largest diameter. A maximum over particles: the same for any thread count.
-    fn adaptive_skin(&self, max_radius: f64) -> f64 {
+    /// Each particle's half skin for the next pair list (see [`BuildMark`]): wide enough that
+    /// it needs about `rebuild_target_steps` steps at its present speed to cross it, within
+    /// half the configured fractions of the largest diameter. Per particle, so the same for
+    /// any thread count.
+    fn half_skins(&self, max_radius: f64) -> Vec<f32> {
         let c = &self.config;
         let (lo, hi) = (
-            c.skin_fraction * 2.0 * max_radius,
-            c.skin_fraction_max * 2.0 * max_radius,
+            c.skin_fraction * max_radius,
+            c.skin_fraction_max * max_radius,
         );
+        let v = &self.particles.velocity;
         if c.rebuild_target_steps == 0 || hi <= lo {
-            return lo;
+            return vec![lo as f32; v.len()];
         }
-        let v2 = self
-            .particles
-            .velocity
-            .iter()
-            .map(|v| v.norm_squared())
-            .fold(0.0, f64::max);
-        let wanted = 2.0 * v2.sqrt() * c.time_step * c.rebuild_target_steps as f64;
-        wanted.clamp(lo, hi)
+        let reach = c.time_step * c.rebuild_target_steps as f64;
+        v.iter()
+            .map(|v| (v.norm() * reach).clamp(lo, hi) as f32)
+            .collect()
     }
 
     pub(super) fn place_geometries(&self, t: f64) -> Vec<PlacedGeometry> {
@@ -155,7 +165,6 @@ impl World {
     pub(super) fn kick_drift(&mut self) {
         let dt = self.config.time_step;
         let domain = self.config.domain;
-        let half_skin2 = 0.25 * self.skin * self.skin;
         let p = &mut self.particles;
         let flags: Vec<bool> = p
             .position
@@ -171,8 +180,7 @@ impl World {
                     v[k] += p.force[i] * (0.5 * dt / p.mass[i]);
                     w[k] += p.torque[i] * (0.5 * dt * p.inverse_inertia[i]);
                     x[k] += v[k] * dt;
-                    let moved = x[k] - double(p.position_at_build[i]);
-                    rebuild |= moved.norm_squared() > half_skin2 || domain.is_outside(x[k]);
+                    rebuild |= p.build_mark[i].moved_too_far(x[k]) || domain.is_outside(x[k]);
                 }
                 rebuild
             })
