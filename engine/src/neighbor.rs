@@ -278,8 +278,11 @@ impl CellGrid {
         (z * self.dims[1] + y) * self.dims[0] + x
     }
 
-    /// The distinct neighbouring cells (including its own) of the cell containing `p`.
-    fn neighbour_cells(&self, p: Vec3, out: &mut Vec<usize>) {
+    /// The particles of the distinct neighbouring cells (including its own) of the cell
+    /// containing `p`, as ranges of [`Self::sorted`]: cells adjacent along x are adjacent in
+    /// `sorted`, so each (y, z) row of up to three cells is one range (two where x wraps
+    /// across a periodic face). Cells in ascending (z, y, x) order, as a cell-by-cell walk.
+    fn neighbour_ranges(&self, p: Vec3, out: &mut Vec<std::ops::Range<usize>>) {
         out.clear();
         let c = self.coords(p);
         let mut along: [[usize; 3]; 3] = [[0; 3]; 3];
@@ -299,11 +302,24 @@ impl CellGrid {
                     counts[a] += 1;
                 }
             }
+            along[a][..counts[a]].sort_unstable();
         }
+        let xs = &along[0][..counts[0]];
         for &z in &along[2][..counts[2]] {
             for &y in &along[1][..counts[1]] {
-                for &x in &along[0][..counts[0]] {
-                    out.push((z * self.dims[1] + y) * self.dims[0] + x);
+                let row = (z * self.dims[1] + y) * self.dims[0];
+                let mut k = 0;
+                while k < xs.len() {
+                    let first = xs[k];
+                    while k + 1 < xs.len() && xs[k + 1] == xs[k] + 1 {
+                        k += 1;
+                    }
+                    let last = xs[k];
+                    k += 1;
+                    out.push(
+                        self.cell_start[row + first] as usize
+                            ..self.cell_start[row + last + 1] as usize,
+                    );
                 }
             }
         }
@@ -379,7 +395,7 @@ pub(crate) fn build_pair_list(
                 tangential: Vec::with_capacity(range.len() * 8),
                 rolling: Vec::new(),
             };
-            let mut cells = Vec::with_capacity(27);
+            let mut ranges = Vec::with_capacity(18);
             // Particles are sorted by cell, so runs of them share one neighbourhood.
             let mut cells_of = usize::MAX;
             for i in range {
@@ -388,11 +404,11 @@ pub(crate) fn build_pair_list(
                 let ri = radius[i] + half_skin[i] as f64;
                 let cell = grid.cell_of(pi);
                 if cell != cells_of {
-                    grid.neighbour_cells(pi, &mut cells);
+                    grid.neighbour_ranges(pi, &mut ranges);
                     cells_of = cell;
                 }
-                for &c in &cells {
-                    for &j in grid.cell(c) {
+                for range in &ranges {
+                    for &j in &grid.sorted[range.clone()] {
                         let j = j as usize;
                         if j <= i {
                             continue;
