@@ -384,6 +384,17 @@ pub(crate) fn build_pair_list(
         tangential: Vec<Vec3>,
         rolling: Vec<Vec3>,
     }
+    // The candidates' positions and reaches in cell order, so that a row of cells is read
+    // from one contiguous stretch of memory.
+    let packed: Vec<(Vec3, f64)> = grid
+        .sorted
+        .par_iter()
+        .with_min_len(CHUNK)
+        .map(|&j| {
+            let j = j as usize;
+            (positions[j], radius[j] + half_skin[j] as f64)
+        })
+        .collect();
 
     let chunks: Vec<ChunkPairs> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
@@ -408,18 +419,21 @@ pub(crate) fn build_pair_list(
                     cells_of = cell;
                 }
                 for range in &ranges {
-                    for &j in &grid.sorted[range.clone()] {
+                    let candidates = grid.sorted[range.clone()]
+                        .iter()
+                        .zip(&packed[range.clone()]);
+                    for (&j, &(pj, reach_j)) in candidates {
                         let j = j as usize;
                         if j <= i {
                             continue;
                         }
-                        let raw = positions[j] - pi;
+                        let raw = pj - pi;
                         let d = if periodic {
                             domain.minimum_image(raw)
                         } else {
                             raw
                         };
-                        let reach = ri + (radius[j] + half_skin[j] as f64);
+                        let reach = ri + reach_j;
                         if d.norm_squared() < reach * reach {
                             let wraps = if d == raw { 0 } else { WRAPS };
                             out.partner.push(j as u32 | wraps);
