@@ -327,9 +327,13 @@ pub fn epsd_rolling_torque(
     }
 }
 
-/// EPSD rolling stiffness kr = 2.25 kn μr² R*² (Ai et al. 2011, after Iwashita & Oda), with kn
-/// the Hertz normal tangent stiffness.
+/// EPSD rolling stiffness kr = 2.25 kn μr² R*² (Ai et al. 2011, after Iwashita & Oda). Ai's
+/// kn is a linear spring's stiffness; for Hertz contacts we take the secant stiffness
+/// kn = Fn / δ = 4/3 E* √(R* δ), which is 2/3 of the tangent stiffness `normal_stiffness`
+/// (2 E* √(R* δ)) that the contact law reports, as LIGGGHTS' `rolling_friction epsd` does
+/// (its `cdata.kn`), so that the two codes' EPSD models are the same law.
 #[inline]
 pub fn epsd_rolling_stiffness(normal_stiffness: f64, rolling_friction: f64, r_star: f64) -> f64 {
-    2.25 * normal_stiffness * rolling_friction * rolling_friction * r_star * r_star
+    let secant = normal_stiffness * (2.0 / 3.0);
+    2.25 * secant * rolling_friction * rolling_friction * r_star * r_star
 }
