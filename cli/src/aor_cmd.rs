@@ -2,8 +2,9 @@
 //! engine, measured automatically.
 //!
 //! Prints the result as JSON (angles in degrees, lengths in metres, masses in kg, times in s;
-//! the key `angle_deg` is the mean flank angle; `not_at_rest` the creep rate and kinetic energy
-//! of a heap that did not come to rest, also one line on stderr) and writes `result.json`,
+//! the key `angle_deg` is the mean flank angle; `rest` how far from rest the heap was at the
+//! end, creep rate and kinetic energy against their limits, for every run, also one line on
+//! stderr) and writes `result.json`,
 //! `pile.svg` (side view with the fitted flank lines; axes in mm) and `final.csv` (every grain)
 //! into `--out`. `--measure FILE` measures a particle file instead of running; `--export-stl
 //! DIR` writes the rig's meshes.
@@ -110,8 +111,13 @@ pub fn run(args: &AorArgs) -> Result<()> {
         write_particles_csv(w, run.world.particles())
     })?;
     println!("{json}");
-    if let Some(gap) = &run.result.not_at_rest {
-        eprintln!("not at rest ({:?}): {gap}", run.result.ended_by);
+    if let Some(rest) = &run.result.rest {
+        let verdict = if run.result.came_to_rest {
+            "at rest"
+        } else {
+            "not at rest"
+        };
+        eprintln!("{verdict} ({:?}): {rest}", run.result.ended_by);
     }
     Ok(())
 }

@@ -328,6 +328,10 @@ pub fn run_experiment_with_beds(
             let scalars = [
                 ("angle_deg", r.angle_deg.or(capped_angle)),
                 ("came_to_rest", Some(if r.came_to_rest { 1.0 } else { 0.0 })),
+                (
+                    "creep_deg_per_s",
+                    r.rest.as_ref().and_then(|s| s.creep_deg_per_s),
+                ),
                 ("left_deg", r.left_deg),
                 ("right_deg", r.right_deg),
                 ("projection_mean_deg", r.projection_mean_deg),

@@ -37,10 +37,13 @@ fn run(spec: &AorSpec) -> AorResult {
     // Every fast heap forms, comes to rest and keeps (nearly) all its grains.
     assert_eq!(r.status, RunStatus::Ok, "{r:?}");
     assert!(r.came_to_rest);
-    assert!(matches!(
-        r.ended_by,
-        EndedBy::KineticEnergy | EndedBy::AngleStable
-    ));
+    assert_eq!(r.ended_by, EndedBy::AtRest);
+    // ... and says how close to the limits it stopped.
+    let rest = r.rest.expect("a run that came to rest reports its creep");
+    eprintln!("  at rest: {rest}");
+    assert!(rest.creep_deg_per_s.unwrap().abs() <= spec.settle.max_creep_deg_per_s);
+    assert!(rest.kinetic_energy_ratio < spec.settle.kinetic_energy_threshold);
+    assert_eq!(rest.creep_checks, spec.settle.rest_checks());
     assert!(r.grains.inserted.mass > 0.99 * spec.total_mass - 1e-4);
     assert!(r.grains.on_pile.count as f64 > 0.8 * r.grains.inserted.count as f64);
     assert_eq!(r.grains.held_up.count, 0, "the funnel drained");
@@ -58,7 +61,14 @@ fn angle_with(set: &[(&str, &str)]) -> f64 {
     a
 }
 
+/// Ignored since the rest rule of issue 13c: at μr 0.40 the fast heap never comes to rest (see
+/// `a_steep_heap_that_keeps_creeping_is_reported_not_settled_with_its_creep`). The old rule
+/// stopped it at 0.8 s (39.4°) when the kinetic energy dipped below the threshold once; with a
+/// 4 s cap it slumps on to 24.0° at 4.2 s, still at −2.8°/s with the kinetic energy at
+/// 1e-5 to 1e-4 m g d. So the 9.7° → 40.1° this test asserted was a snapshot of a slump, and
+/// whether the settled angle rises with μr at this resolution is open.
 #[test]
+#[ignore = "issue 13c: the μr 0.40 fast heap creeps past any cap tried (4 s); see docs/aor.md"]
 fn angle_rises_with_soil_soil_rolling_friction() {
     let low = angle_with(&[("soil_soil.rolling_friction", "0.01")]);
     let high = angle_with(&[("soil_soil.rolling_friction", "0.40")]);
@@ -144,16 +154,15 @@ fn a_heap_cut_by_the_time_cap_reports_how_far_from_rest_it_was() {
     spec.settle.min_time = 0.1;
     spec.settle.check_interval = 0.05;
     spec.settle.angle_window = 3;
+    spec.settle.creep_window_s = 0.1;
     spec.time_cap = 0.42;
     let run = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
     let r = run.result;
-    eprintln!("{:?} {:?} {:?}", r.ended_by, r.message, r.not_at_rest);
+    eprintln!("{:?} {:?} {:?}", r.ended_by, r.message, r.rest);
     assert_eq!(r.ended_by, EndedBy::TimeCap, "{r:?}");
     assert_eq!(r.status, RunStatus::NotSettled);
     assert!(!r.came_to_rest);
-    let gap = r
-        .not_at_rest
-        .expect("a capped run says how far from rest it was");
+    let gap = r.rest.expect("a capped run says how far from rest it was");
     let rate = gap
         .creep_deg_per_s
         .expect("angles were measured at the last checks");
@@ -171,9 +180,52 @@ fn a_heap_cut_by_the_time_cap_reports_how_far_from_rest_it_was() {
     assert!(message.contains("°/s"), "{message}");
     // The JSON carries it, and a result written before the field existed still parses.
     let json = serde_json::to_value(&r).unwrap();
-    assert!(json["not_at_rest"]["creep_deg_per_s"].is_number(), "{json}");
+    assert!(json["rest"]["creep_deg_per_s"].is_number(), "{json}");
     let mut old = json.clone();
-    old.as_object_mut().unwrap().remove("not_at_rest");
+    old.as_object_mut().unwrap().remove("rest");
+    let parsed: AorResult = serde_json::from_value(old.clone()).unwrap();
+    assert_eq!(parsed.rest, None);
+    // ... as does one that ended by the old rule (`ended_by: kinetic_energy`).
+    old["ended_by"] = "kinetic_energy".into();
+    old["came_to_rest"] = true.into();
     let parsed: AorResult = serde_json::from_value(old).unwrap();
-    assert_eq!(parsed.not_at_rest, None);
+    assert_eq!(parsed.ended_by, EndedBy::KineticEnergy);
+}
+
+#[test]
+fn a_steep_heap_that_keeps_creeping_is_reported_not_settled_with_its_creep() {
+    // μr 0.40 at the fast resolution: the heap stands at ~39° 0.6 s after insertion with the
+    // kinetic energy below the threshold at times (where the old rule stopped it), then slumps
+    // and rearranges by degrees every few tenths of a second until the cap.
+    let mut spec = AorSpec::fast();
+    spec.set("soil_soil.rolling_friction", "0.40").unwrap();
+    let run = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
+    let r = run.result;
+    eprintln!("{:?} {:?}", r.ended_by, r.message);
+    assert_eq!(r.ended_by, EndedBy::TimeCap, "{r:?}");
+    assert_eq!(r.status, RunStatus::NotSettled);
+    assert!(!r.came_to_rest && r.angle_deg.is_none());
+    assert!(
+        r.last_angle_deg.is_some(),
+        "the heap is measured as it stands"
+    );
+    let rest = r.rest.expect("a capped run reports its creep");
+    assert_eq!(rest.creep_checks, spec.settle.rest_checks());
+    // Not at rest by the angle: it moved by more than the rule allows over the last checks.
+    let rate = rest.creep_deg_per_s.unwrap();
+    let range = rest.angle_range_deg.unwrap();
+    assert!(
+        rate.abs() > spec.settle.max_creep_deg_per_s || range > spec.settle.angle_tolerance_deg,
+        "{rest}"
+    );
+    // The old rule would have ended it: a check with the kinetic energy below the threshold.
+    assert!(r
+        .checks
+        .iter()
+        .any(|c| c.kinetic_energy_ratio < spec.settle.kinetic_energy_threshold));
+    let message = r.message.unwrap();
+    assert!(
+        message.contains("°/s") && message.contains("limit"),
+        "{message}"
+    );
 }

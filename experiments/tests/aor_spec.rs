@@ -138,3 +138,40 @@ fn validate_rejects_impossible_values_by_path() {
     s.set("settle.angle_window", "1").unwrap();
     assert!(s.validate().is_err());
 }
+
+#[test]
+fn the_rest_rule_fields_are_validated_by_path_and_default_when_missing() {
+    let s = AorSpec::default();
+    assert_eq!(
+        (s.settle.creep_window_s, s.settle.max_creep_deg_per_s),
+        (0.5, 0.5)
+    );
+    for (path, bad) in [
+        ("settle.creep_window_s", "0"),
+        ("settle.creep_window_s", "-0.5"),
+        ("settle.creep_window_s", "1e9"),
+        ("settle.max_creep_deg_per_s", "0"),
+        ("settle.max_creep_deg_per_s", "-1"),
+    ] {
+        let mut s = AorSpec::default();
+        s.set(path, bad).unwrap();
+        let e = s.validate().unwrap_err();
+        assert!(matches!(e, SpecError::Invalid { .. }), "{e}");
+        assert!(e.to_string().starts_with(path), "{path}={bad}: {e}");
+    }
+    let mut s = AorSpec::default();
+    s.apply_assignments([
+        "settle.creep_window_s=1.0",
+        "settle.max_creep_deg_per_s=0.2",
+    ])
+    .unwrap();
+    s.validate().unwrap();
+    assert_eq!(s.settle.rest_checks(), 11);
+    // A spec written before the fields existed parses with the defaults.
+    let mut json: serde_json::Value = serde_json::from_str(&AorSpec::default().to_json()).unwrap();
+    let settle = json["settle"].as_object_mut().unwrap();
+    settle.remove("creep_window_s");
+    settle.remove("max_creep_deg_per_s");
+    let old: AorSpec = serde_json::from_value(json).unwrap();
+    assert_eq!(old, AorSpec::default());
+}

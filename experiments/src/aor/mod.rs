@@ -46,7 +46,7 @@ pub use measure::{
     MeasureSettings, ProjectionPlane, SideProjection,
 };
 pub use picture::{side_view_svg, PictureOptions};
-pub use rest::{not_at_rest, NotAtRest};
+pub use rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 pub use run::{
     measure_heap, rig_meshes, run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy,
     GrainBudget, Progress, RunStatus, SettleCheck,

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::measure::{measure_angle_of_repose, AngleOfRepose, MeasureError, MeasureSettings};
 use super::picture::{side_view_svg, PictureOptions};
-use super::rest::{not_at_rest, NotAtRest};
+use super::rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 use super::spec::{AorSpec, Protocol, SpecError};
 // The progress callback's types (phases here: `filling`, `lifting`, `settling`, `measuring`;
 // filling is the first half of the fraction, settling the second).
@@ -51,9 +51,14 @@ fn build_error(part: &'static str, e: impl std::fmt::Display) -> AorError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum EndedBy {
-    /// Mean kinetic energy per grain fell below the threshold.
+    /// The heap came to rest by the rule of [`super::SettleSpec`] ([`super::rest_decision`]):
+    /// low kinetic energy, a stable angle and no creep over the last checks.
+    AtRest,
+    /// Legacy, read from results written before the rest rule of issue 13 (never produced
+    /// now): the kinetic energy alone fell below the threshold, which a creeping heap can do.
     KineticEnergy,
-    /// The measured angle stayed within the tolerance over the window.
+    /// Legacy, as `KineticEnergy`: three angles alone lay within the tolerance, which a heap
+    /// in a slow slump can do.
     AngleStable,
     /// Simulated-time cap.
     TimeCap,
@@ -146,12 +151,14 @@ pub struct AorResult {
     pub time_step_s: f64,
     pub wall_time_s: f64,
     pub ended_by: EndedBy,
+    /// `ended_by` is `at_rest`.
     pub came_to_rest: bool,
-    /// How far from rest the heap was when the run ended without coming to rest (time or
-    /// wall-clock cap, cancel): the angle's creep rate over the last checks and the last kinetic
-    /// energy against the threshold. None when it came to rest or no check ran.
+    /// How far from rest the heap was at its last check, whether or not it came to rest: the
+    /// angle's creep rate over the last checks, their angle range and the last kinetic energy,
+    /// each with its limit. None only when no check ran (cancelled or capped before the pour
+    /// ended); results written before the field existed parse with none.
     #[serde(default)]
-    pub not_at_rest: Option<NotAtRest>,
+    pub rest: Option<RestState>,
     pub checks: Vec<SettleCheck>,
 }
 
@@ -479,6 +486,7 @@ pub fn run_aor(
     let mut insertion_end: Option<f64> = None;
     let mut ended_by: Option<EndedBy> = None;
     let mut checks: Vec<SettleCheck> = Vec::new();
+    let mut decision = RestDecision::NotYet(NotYet::TooFewChecks);
     let mut next_check = f64::INFINITY;
     let mut deadline = nominal_fill + ready_after + spec.time_cap;
     const REPORT_EVERY: u64 = 200;
@@ -539,20 +547,9 @@ pub fn run_aor(
                 angle_deg: angle,
                 on_base: positions.len() as u64,
             });
-            let window = spec.settle.angle_window;
-            if ke < spec.settle.kinetic_energy_threshold {
-                ended_by = Some(EndedBy::KineticEnergy);
-            } else if checks.len() >= window {
-                let recent = &checks[checks.len() - window..];
-                let angles: Option<Vec<f64>> = recent.iter().map(|c| c.angle_deg).collect();
-                let same_grains = recent.iter().all(|c| c.on_base == recent[0].on_base);
-                if let (Some(angles), true) = (angles, same_grains) {
-                    let lo = angles.iter().copied().fold(f64::INFINITY, f64::min);
-                    let hi = angles.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                    if hi - lo <= spec.settle.angle_tolerance_deg {
-                        ended_by = Some(EndedBy::AngleStable);
-                    }
-                }
+            decision = rest_decision(&checks, &spec.settle);
+            if decision == RestDecision::AtRest {
+                ended_by = Some(EndedBy::AtRest);
             }
             if ended_by.is_none() {
                 if let Some(cap) = spec.wall_time_cap {
@@ -614,12 +611,8 @@ pub fn run_aor(
     } else {
         0.0
     };
-    let came_to_rest = matches!(ended_by, EndedBy::KineticEnergy | EndedBy::AngleStable);
-    let rest_gap = if came_to_rest {
-        None
-    } else {
-        not_at_rest(&checks, &spec.settle)
-    };
+    let came_to_rest = ended_by == EndedBy::AtRest;
+    let rest = rest_state(&checks, &spec.settle);
     let (status, message) = if ended_by == EndedBy::Cancelled {
         (RunStatus::Cancelled, Some("cancelled".to_owned()))
     } else if insertion_end.is_none() {
@@ -644,9 +637,11 @@ pub fn run_aor(
     } else if !came_to_rest {
         (
             RunStatus::NotSettled,
-            Some(match &rest_gap {
-                Some(gap) => format!("the heap did not come to rest ({ended_by:?}): {gap}"),
-                None => format!("the heap did not come to rest ({ended_by:?})"),
+            Some(match (&rest, decision) {
+                (Some(state), RestDecision::NotYet(why)) => {
+                    format!("the heap did not come to rest ({ended_by:?}; {why}): {state}")
+                }
+                _ => format!("the heap did not come to rest ({ended_by:?})"),
             }),
         )
     } else {
@@ -694,7 +689,7 @@ pub fn run_aor(
         wall_time_s: started.elapsed().as_secs_f64(),
         ended_by,
         came_to_rest,
-        not_at_rest: rest_gap,
+        rest,
         checks,
     };
     Ok(AorRun {
