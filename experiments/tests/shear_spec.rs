@@ -133,3 +133,48 @@ fn set_reaches_array_elements_by_index_and_names_the_valid_range() {
     );
     assert_eq!(spec, before);
 }
+
+#[test]
+fn the_cohesion_ladder_batch_expands_to_valid_default_specs() {
+    // As the server expands it: the preset with the batch's spec merged over it, then each
+    // explicit point written at the factor's path.
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let batch: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(format!(
+            "{root}/examples/batches/shear_cohesion_ladder.json"
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    let experiment = &batch["experiment"];
+    assert_eq!(experiment["kind"], "shear");
+    assert_eq!(experiment["preset"], "default");
+    let template = repose_experiments::catalog::prepare_spec(
+        "shear",
+        experiment["preset"].as_str(),
+        &experiment["spec"],
+    )
+    .unwrap();
+    let path = batch["factors"][0]["path"].as_str().unwrap();
+    let points = batch["design"]["points"].as_array().unwrap();
+    assert!(points.len() >= 3);
+    let preset = ShearSpec::preset("default").unwrap();
+    for point in points {
+        let value = point[0].as_f64().unwrap();
+        let spec = repose_api::apply_factor_values(&template, [(path, value)]).unwrap();
+        repose_experiments::catalog::validate_spec("shear", &spec).unwrap();
+        let mut spec = ShearSpec::from_json(&spec.to_string()).unwrap();
+        // Only the cohesion varies, and the sample's seed is fixed while every run gets a seed
+        // of its own: one cached sample (the preset's, seed 1) serves every run.
+        spec.seed = 1000 + value as u64;
+        assert_eq!(sample_key(&spec), sample_key(&preset), "{value}");
+        assert_eq!(
+            serde_json::to_value(spec.soil_soil.cohesion).unwrap(),
+            serde_json::json!({"model": "linear", "energy_density": value})
+        );
+        assert_eq!(
+            spec.soil_soil.static_friction,
+            preset.soil_soil.static_friction
+        );
+    }
+}

@@ -171,6 +171,23 @@ pub struct ShearResult {
 }
 
 impl ShearResult {
+    /// Samples kept per stage in a job's `details` ([`Self::thinned`]).
+    pub const DETAILS_SAMPLES_PER_STAGE: usize = 60;
+
+    /// A copy whose stage series keep at most `max_per_stage` samples, evenly spaced, the
+    /// first, the last and the peak's included (`max_per_stage` at least 3). A job server
+    /// bounds a result's details (64 KiB): the default preset records every servo interval,
+    /// 2 000 samples a stage, about 0.5 MB for its four stages. The peaks, residuals and
+    /// fits are computed from the full series before and are unchanged.
+    pub fn thinned(&self, max_per_stage: usize) -> ShearResult {
+        let max = max_per_stage.max(3);
+        let mut out = self.clone();
+        for stage in &mut out.stages {
+            stage.series = thin_series(&stage.series, max);
+        }
+        out
+    }
+
     /// Scalar results for a job server: `cohesion_kpa`, `friction_angle_deg`, `r_squared`,
     /// `rmse_kpa`, `cohesion_std_error_kpa` (with three or more stresses), the same for the
     /// residual line (`residual_cohesion_kpa`, `residual_friction_angle_deg`,
@@ -216,6 +233,27 @@ impl ShearResult {
         }
         m
     }
+}
+
+/// At most `max` (at least 3) of `series`, evenly spaced, the first, the last and the highest
+/// shear stress included.
+fn thin_series(series: &[ShearSample], max: usize) -> Vec<ShearSample> {
+    let n = series.len();
+    let max = max.max(3);
+    if n <= max {
+        return series.to_vec();
+    }
+    let peak = series
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.shear_stress_kpa.total_cmp(&b.1.shear_stress_kpa))
+        .map_or(0, |(i, _)| i);
+    // max - 1 evenly spaced indices from 0 to n - 1, then the peak's.
+    let mut keep: Vec<usize> = (0..max - 1).map(|k| k * (n - 1) / (max - 2)).collect();
+    keep.push(peak);
+    keep.sort_unstable();
+    keep.dedup();
+    keep.into_iter().map(|i| series[i]).collect()
 }
 
 /// A finished run: the result and what a caller may want to draw or keep.
@@ -707,4 +745,46 @@ fn run_stage(
         steps: world.steps(),
         series,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(i: usize) -> ShearSample {
+        let x = i as f64;
+        ShearSample {
+            displacement_mm: x * 0.005_123_456_789,
+            shear_stress_kpa: 8.0 * (1.0 - (-x / 300.0).exp()) + 0.3 * (x * 0.37).sin(),
+            lid_stress_kpa: 20.0 + 0.1 * (x * 0.11).cos(),
+            lid_z_mm: 71.234_567_891 - x * 1.0e-4,
+        }
+    }
+
+    #[test]
+    fn thinning_keeps_the_ends_and_the_peak_and_fits_a_job_servers_details() {
+        // The default preset: 10 mm at 5 mm/s, one sample a millisecond.
+        let series: Vec<ShearSample> = (0..2000).map(sample).collect();
+        let peak = series
+            .iter()
+            .map(|s| s.shear_stress_kpa)
+            .fold(f64::MIN, f64::max);
+        let max = ShearResult::DETAILS_SAMPLES_PER_STAGE;
+        let thin = thin_series(&series, max);
+        assert!(thin.len() <= max && thin.len() >= max - 2, "{}", thin.len());
+        assert_eq!(thin[0], series[0]);
+        assert_eq!(thin.last(), series.last());
+        assert!(thin.iter().any(|s| s.shear_stress_kpa == peak));
+        assert!(thin
+            .windows(2)
+            .all(|w| w[0].displacement_mm < w[1].displacement_mm));
+        // Four stages of it stay well inside the server's 64 KiB (the rest of a result is
+        // about 2 KB); the full series are about 0.5 MB.
+        let four = serde_json::to_string(&vec![thin.clone(); 4]).unwrap();
+        assert!(four.len() < 40 * 1024, "{}", four.len());
+        let full = serde_json::to_string(&vec![series.clone(); 4]).unwrap();
+        assert!(full.len() > 64 * 1024, "{}", full.len());
+        // Short series are kept whole.
+        assert_eq!(thin_series(&series[..10], max), series[..10].to_vec());
+    }
 }
