@@ -140,6 +140,15 @@ impl Particles {
             .sum()
     }
 
+    /// Translational kinetic energy alone (½ m v²), J: what moves grains. A grain spinning on
+    /// its spot carries rotational energy without moving anything (see the angle-of-repose rest
+    /// rule, which tests this part).
+    pub fn translational_kinetic_energy(&self) -> f64 {
+        (0..self.len())
+            .map(|k| 0.5 * self.mass[k] * self.velocity[k].norm_squared())
+            .sum()
+    }
+
     /// Total linear momentum, kg·m/s.
     pub fn momentum(&self) -> Vec3 {
         (0..self.len()).fold(Vec3::zeros(), |acc, k| {

@@ -229,3 +229,33 @@ fn a_steep_heap_that_keeps_creeping_is_reported_not_settled_with_its_creep() {
         "{message}"
     );
 }
+
+#[test]
+fn an_epsd_heap_comes_to_rest_though_lone_grains_spin_on_their_spot() {
+    // EPSD rolling friction (as LIGGGHTS defines it) resists rolling but not a twist about the
+    // contact normal, nor does the tangential force: a lone grain on the plate that was set
+    // spinning about the vertical keeps spinning. The rest rule tests the translational kinetic
+    // energy, so such a heap still comes to rest (before that, every default-preset EPSD run
+    // ended `not_settled` at the cap with its angle flat).
+    let mut spec = AorSpec::fast();
+    spec.set("rolling_model", "epsd").unwrap();
+    spec.set("damping_law", "edem_formula").unwrap();
+    let run = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
+    let p = run.world.particles();
+    let n = p.len() as f64;
+    let mean_mass = p.mass.iter().sum::<f64>() / n;
+    let mean_d = 2.0 * p.radius.iter().sum::<f64>() / n;
+    let scale = n * mean_mass * 9.81 * mean_d;
+    let rotational = (p.kinetic_energy() - p.translational_kinetic_energy()) / scale;
+    let translational = p.translational_kinetic_energy() / scale;
+    let r = run.result;
+    eprintln!(
+        "{:?} {:?} angle {:?} at {:.2} s; final kinetic energy / (m g d): translational {translational:.2e}, rotational {rotational:.2e}",
+        r.status, r.ended_by, r.angle_deg, r.simulated_time_s
+    );
+    assert_eq!(r.status, RunStatus::Ok, "{r:?}");
+    assert_eq!(r.ended_by, EndedBy::AtRest);
+    assert!(translational < spec.settle.kinetic_energy_threshold);
+    let angle = r.angle_deg.unwrap();
+    assert!((5.0..60.0).contains(&angle), "angle {angle}");
+}

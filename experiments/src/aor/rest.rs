@@ -28,7 +28,8 @@ pub struct RestState {
     /// `angle_tolerance_deg`.
     pub angle_range_deg: Option<f64>,
     pub angle_tolerance_deg: f64,
-    /// The last check's mean kinetic energy per grain / (m g d), against the threshold.
+    /// The last check's mean translational kinetic energy per grain / (m g d), against the
+    /// threshold (rotation is left out: a grain spinning on its spot moves nothing).
     pub kinetic_energy_ratio: f64,
     pub kinetic_energy_threshold: f64,
     /// Grains that entered or left the heap region over the creep checks.
@@ -61,7 +62,7 @@ impl std::fmt::Display for RestState {
         }
         write!(
             f,
-            ", kinetic energy {:.2e} m g d ({:.2}× the threshold {:.1e})",
+            ", translational kinetic energy {:.2e} m g d ({:.2}× the threshold {:.1e})",
             self.kinetic_energy_ratio,
             self.kinetic_energy_over_threshold(),
             self.kinetic_energy_threshold

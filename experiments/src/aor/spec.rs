@@ -247,9 +247,10 @@ impl Default for BaseSpec {
 /// ([`super::rest_decision`]):
 ///
 /// * every check measured an angle and no grain joined or left the heap region;
-/// * kinetic energy: the last check's mean kinetic energy per grain is below
+/// * kinetic energy: the last check's mean translational kinetic energy per grain is below
 ///   `kinetic_energy_threshold × m g d` (m, d: mean grain mass and diameter), i.e. grains move
-///   by much less than their own size under gravity;
+///   by much less than their own size under gravity (rotation is left out: with EPSD rolling
+///   friction lone grains spin about the vertical for ever without moving; see `run.rs`);
 /// * angle stable: the last `angle_window` angles lie within `angle_tolerance_deg` of each other;
 /// * no creep: the least-squares slope of the angle against time over the whole window is at
 ///   most `max_creep_deg_per_s` in magnitude.
