@@ -88,6 +88,18 @@ fn a_hole_forms_at_least_as_wide_as_the_auger() {
         assert!(metrics.contains_key(key), "{key} missing from {metrics:?}");
     }
     assert_eq!(metrics["opening_diameter_mm"], opening);
+    // The mouth against the settled surface: no wider than against the original one unless
+    // the surface rose, and a hole as wide as the auger at least (mm).
+    let settled = r.settled_opening_diameter_mm.unwrap();
+    let subsidence = r.surface_subsidence_mm.unwrap();
+    assert_eq!(metrics["settled_opening_diameter_mm"], settled);
+    assert!(subsidence.abs() < 0.5 * r.feed_depth_mm, "{}", brief(r));
+    assert!(
+        subsidence < 0.0 || settled <= opening + 1e-9,
+        "{}",
+        brief(r)
+    );
+    assert!(settled >= 0.8 * r.auger_diameter_mm, "{}", brief(r));
     // Pictures and CSV.
     let section = run.section_svg();
     assert!(section.starts_with("<?xml") && section.contains("<circle"));

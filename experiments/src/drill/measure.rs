@@ -283,3 +283,60 @@ pub fn solid_volume_in_cylinder(
         .map(|(_, r)| 4.0 / 3.0 * std::f64::consts::PI * r.powi(3))
         .sum()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 160 mm bin's surface, 2 mm cells: a flat surface at `level` with a round hole of
+    /// `hole_d` around the axis, 100 mm deep.
+    fn field(level: f64, hole_d: f64) -> HeightField {
+        let (cell, n) = (0.002, 80);
+        let mut hf = HeightField {
+            x0: -0.08,
+            y0: -0.08,
+            cell,
+            nx: n,
+            ny: n,
+            z: vec![level; n * n],
+        };
+        for j in 0..n {
+            for i in 0..n {
+                if hf.x(i).hypot(hf.y(j)) < 0.5 * hole_d {
+                    hf.z[j * n + i] = level - 0.1;
+                }
+            }
+        }
+        hf
+    }
+
+    #[test]
+    fn a_sunken_surface_reads_as_the_bin_against_the_original_level_and_as_the_hole_against_the_settled_one(
+    ) {
+        let original = 0.168;
+        let open_depth = 0.006;
+        // The surface stays where it was: both levels give the 60 mm hole.
+        let hf = field(original, 0.06);
+        let at_original = measure_hole(&hf, original, [0.0, 0.0], open_depth, 0.03);
+        assert!(
+            (at_original.opening_diameter - 0.06).abs() < 0.004,
+            "{at_original:?}"
+        );
+        let settled = surface_level(&hf, 0.012);
+        assert_eq!(settled, original);
+        // The whole surface sank 8 mm (more than the 6 mm open depth): against the original
+        // level every cell is open and the "opening" is the bin; against the settled level it is
+        // the hole again.
+        let hf = field(original - 0.008, 0.06);
+        let at_original = measure_hole(&hf, original, [0.0, 0.0], open_depth, 0.03);
+        assert!(at_original.opening_diameter > 0.17, "{at_original:?}");
+        let settled = surface_level(&hf, 0.012);
+        assert!((original - settled - 0.008).abs() < 1e-12);
+        let at_settled = measure_hole(&hf, settled, [0.0, 0.0], open_depth, 0.03);
+        assert!(
+            (at_settled.opening_diameter - 0.06).abs() < 0.004,
+            "{at_settled:?}"
+        );
+        assert!((at_settled.effective_depth - 0.1).abs() < 1e-12);
+    }
+}

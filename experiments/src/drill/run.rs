@@ -20,7 +20,8 @@ use super::bed::{
     SplitMix,
 };
 use super::measure::{
-    height_field, measure_hole, solid_volume_in_cylinder, HeightField, HoleMeasurement,
+    height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
+    HoleMeasurement,
 };
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
@@ -119,6 +120,18 @@ pub struct DrillResult {
     pub backfill_ratio: Option<f64>,
     /// Highest spoil around the hole above the original surface.
     pub rim_height_mm: Option<f64>,
+    /// How far the surface away from the hole sank during the run: the original surface level
+    /// minus the settled one (the median height of the final surface away from the walls,
+    /// [`super::surface_level`]; negative if it rose).
+    #[serde(default)]
+    pub surface_subsidence_mm: Option<f64>,
+    /// The opening measured against the *settled* surface level instead of the original one:
+    /// the mouth of the hole as one measures it standing by the bin. When the whole surface
+    /// sinks by more than `measure.open_depth_diameters` (a cohesive bed that pulls itself
+    /// together while the auger stirs it), the original-level opening takes in the sunken
+    /// surface far from the hole and reads the bin, not the hole; this one does not.
+    #[serde(default)]
+    pub settled_opening_diameter_mm: Option<f64>,
     pub auger_diameter_mm: f64,
     /// Drive torque and axial force: peak (of the `measure.series_interval` averages) and mean
     /// over the feed.
@@ -152,7 +165,8 @@ pub struct DrillResult {
 impl DrillResult {
     /// Scalar results for a job server: `opening_diameter_mm`, `opening_diameter_x_mm`,
     /// `opening_diameter_y_mm`, `opening_area_mm2`, `effective_depth_mm`, `depth_ratio`,
-    /// `backfill_ratio`, `rim_height_mm`, `peak_torque_nm`, `mean_feed_torque_nm`,
+    /// `backfill_ratio`, `rim_height_mm`, `surface_subsidence_mm`, `settled_opening_diameter_mm`,
+    /// `peak_torque_nm`, `mean_feed_torque_nm`,
     /// `peak_axial_force_n`, `mean_feed_axial_force_n`, `energy_j`, `rotation_energy_j`,
     /// `feed_energy_j`, `simulated_time_s`, `particles`, and `came_to_rest` (1 or 0). Like the
     /// angle-of-repose runs, a run that did not come to rest within the time cap
@@ -180,6 +194,11 @@ impl DrillResult {
             ("depth_ratio", self.depth_ratio),
             ("backfill_ratio", self.backfill_ratio),
             ("rim_height_mm", self.rim_height_mm),
+            ("surface_subsidence_mm", self.surface_subsidence_mm),
+            (
+                "settled_opening_diameter_mm",
+                self.settled_opening_diameter_mm,
+            ),
             ("peak_torque_nm", Some(self.peak_torque_nm)),
             ("mean_feed_torque_nm", Some(self.mean_feed_torque_nm)),
             ("peak_axial_force_n", Some(self.peak_axial_force_n)),
@@ -476,6 +495,7 @@ fn drill(
         radii,
         carried_out,
         hole: measurement,
+        settled_hole,
         field: surface_field,
         error: measure_error,
     } = measure_world(spec, &world, &motion, surface, mean_r);
@@ -524,6 +544,7 @@ fn drill(
     };
     let report = matches!(status, DrillStatus::Ok | DrillStatus::NotSettled);
     let hole = measurement.as_ref().filter(|_| report);
+    let settled = settled_hole.as_ref();
     let mm = |f: &dyn Fn(&HoleMeasurement) -> f64| hole.map(|h| 1e3 * f(h));
     let result = DrillResult {
         status,
@@ -537,6 +558,10 @@ fn drill(
         depth_ratio: hole.map(|h| h.effective_depth / d.depth),
         backfill_ratio: backfill.filter(|_| report),
         rim_height_mm: mm(&|h| h.rim_height),
+        surface_subsidence_mm: settled
+            .filter(|_| report)
+            .map(|h| 1e3 * (surface - h.surface_z)),
+        settled_opening_diameter_mm: settled.filter(|_| report).map(|h| 1e3 * h.opening_diameter),
         auger_diameter_mm: 1e3 * a.outer_diameter,
         peak_torque_nm: loads.peak_torque,
         mean_feed_torque_nm: loads.mean_feed_torque,
@@ -586,6 +611,8 @@ struct Measured {
     /// Grains on the auger (above its tip, within its radius).
     carried_out: usize,
     hole: Option<HoleMeasurement>,
+    /// The same hole measured against the settled surface level.
+    settled_hole: Option<HoleMeasurement>,
     field: Option<HeightField>,
     error: Option<String>,
 }
@@ -622,25 +649,28 @@ fn measure_world(
         m.probe_fraction * mean_r,
         0.0,
     );
-    let (hole, field, error) = match hf {
+    let (hole, settled_hole, field, error) = match hf {
         Ok(hf) if !positions.is_empty() => {
-            let hole = measure_hole(
-                &hf,
-                surface,
-                [0.0, 0.0],
-                m.open_depth_diameters * 2.0 * mean_r,
-                reach,
-            );
-            (Some(hole), Some(hf), None)
+            let open_depth = m.open_depth_diameters * 2.0 * mean_r;
+            let hole = measure_hole(&hf, surface, [0.0, 0.0], open_depth, reach);
+            let settled = surface_level(&hf, m.wall_margin_diameters * 2.0 * mean_r);
+            let settled_hole = measure_hole(&hf, settled, [0.0, 0.0], open_depth, reach);
+            (Some(hole), Some(settled_hole), Some(hf), None)
         }
-        Ok(_) => (None, None, Some("no grains left to measure".to_owned())),
-        Err(e) => (None, None, Some(e.to_string())),
+        Ok(_) => (
+            None,
+            None,
+            None,
+            Some("no grains left to measure".to_owned()),
+        ),
+        Err(e) => (None, None, None, Some(e.to_string())),
     };
     Measured {
         positions,
         radii,
         carried_out,
         hole,
+        settled_hole,
         field,
         error,
     }
