@@ -345,7 +345,15 @@ fn submit_status_and_watch_talk_to_the_server() {
 /// The whole calibration on the real DEM engine, at a resolution CI can afford: three candidate
 /// factors, ≈ 1 150-grain heaps, two worker processes. The campaign must end with a verified
 /// optimum within its tolerance (±10 % at this resolution).
+///
+/// Out of the default run since the rest rule of issue 13c (a heap must stop creeping, not
+/// only dip below the kinetic-energy threshold): its μr 0.4 corner creeps to the fast preset's
+/// 2.5 s cap, and the test took 507 s of a 22-minute CI run (2026-11-24; it passed). The
+/// two-target campaign below still takes a campaign through the real engine and two worker
+/// processes in every CI run. Run it with
+/// `cargo test -p repose --test service -- --ignored a_campaign_on_the_dem_engine`.
 #[test]
+#[ignore = "about 8 minutes on 2 cores since the issue-13c rest rule; the two-target DEM campaign runs in CI"]
 fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum() {
     let dir = tempfile::tempdir().unwrap();
     let service = Service::start(dir.path(), 60.0);

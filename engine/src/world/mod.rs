@@ -587,6 +587,28 @@ mod tests {
     }
 
     /// A dense, frictional, falling cloud over a floor: 3000 particles (six chunks).
+    /// A flat steel floor at z = 0 over [-0.01, hi]² (two triangles).
+    fn add_floor(world: &mut World, steel: MaterialId, hi: f64) {
+        let floor = TriMesh::new(
+            vec![
+                Vec3::new(-0.01, -0.01, 0.0),
+                Vec3::new(hi, -0.01, 0.0),
+                Vec3::new(hi, hi, 0.0),
+                Vec3::new(-0.01, hi, 0.0),
+            ],
+            vec![[0, 1, 2], [0, 2, 3]],
+        )
+        .unwrap();
+        world
+            .add_geometry(Geometry {
+                name: "floor".into(),
+                mesh: floor,
+                motion: Motion::stationary(Pose::identity()),
+                material: steel,
+            })
+            .unwrap();
+    }
+
     fn cloud(rolling_model: RollingModel, integrator: Integrator) -> World {
         let materials = frictional_paper_table(0.4);
         let soil = materials.id("soil").unwrap();
@@ -604,24 +626,7 @@ mod tests {
         config.rolling_model = rolling_model;
         config.integrator = integrator;
         let mut world = World::new(materials, config).unwrap();
-        let floor = TriMesh::new(
-            vec![
-                Vec3::new(-0.01, -0.01, 0.0),
-                Vec3::new(0.04, -0.01, 0.0),
-                Vec3::new(0.04, 0.04, 0.0),
-                Vec3::new(-0.01, 0.04, 0.0),
-            ],
-            vec![[0, 1, 2], [0, 2, 3]],
-        )
-        .unwrap();
-        world
-            .add_geometry(Geometry {
-                name: "floor".into(),
-                mesh: floor,
-                motion: Motion::stationary(Pose::identity()),
-                material: steel,
-            })
-            .unwrap();
+        add_floor(&mut world, steel, 0.04);
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let per = 14;
         let spacing = side / per as f64;
@@ -876,24 +881,7 @@ mod tests {
         let dt = materials.rayleigh_time_step(soil, r, 0.2);
         let steel = materials.id("steel").unwrap();
         let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
-        let floor = TriMesh::new(
-            vec![
-                Vec3::new(-0.01, -0.01, 0.0),
-                Vec3::new(0.03, -0.01, 0.0),
-                Vec3::new(0.03, 0.03, 0.0),
-                Vec3::new(-0.01, 0.03, 0.0),
-            ],
-            vec![[0, 1, 2], [0, 2, 3]],
-        )
-        .unwrap();
-        world
-            .add_geometry(Geometry {
-                name: "floor".into(),
-                mesh: floor,
-                motion: Motion::stationary(Pose::identity()),
-                material: steel,
-            })
-            .unwrap();
+        add_floor(&mut world, steel, 0.03);
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let per = 5;
         let spacing = side / per as f64;
