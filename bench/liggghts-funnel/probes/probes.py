@@ -105,7 +105,7 @@ def probes():
 
 FUNNEL_LAYERS = int(os.environ.get("FUNNEL_LAYERS", "2"))
 FUNNEL_TIME = float(os.environ.get("FUNNEL_TIME", "0.8"))
-RIG = os.environ.get("RIG", "/work/meas/peer-probe/rig")
+RIG = os.environ.get("RIG", "/tmp/rig")  # `repose aor ... --export-stl /tmp/rig` (README)
 PLATE_HALF = 0.1
 
 
