@@ -495,7 +495,6 @@ fn drill(
         radii,
         carried_out,
         hole: measurement,
-        settled_hole,
         field: surface_field,
         error: measure_error,
     } = measure_world(spec, &world, &motion, surface, mean_r);
@@ -544,6 +543,14 @@ fn drill(
     };
     let report = matches!(status, DrillStatus::Ok | DrillStatus::NotSettled);
     let hole = measurement.as_ref().filter(|_| report);
+    // The same hole against the settled surface: once, here (the checks above need only the
+    // original-level measurement).
+    let settled_hole = surface_field.as_ref().map(|hf| {
+        let m = &spec.measure;
+        let settled = surface_level(hf, m.wall_margin_diameters * 2.0 * mean_r);
+        let open_depth = m.open_depth_diameters * 2.0 * mean_r;
+        measure_hole(hf, settled, [0.0, 0.0], open_depth, reach)
+    });
     let settled = settled_hole.as_ref();
     let mm = |f: &dyn Fn(&HoleMeasurement) -> f64| hole.map(|h| 1e3 * f(h));
     let result = DrillResult {
@@ -611,8 +618,6 @@ struct Measured {
     /// Grains on the auger (above its tip, within its radius).
     carried_out: usize,
     hole: Option<HoleMeasurement>,
-    /// The same hole measured against the settled surface level.
-    settled_hole: Option<HoleMeasurement>,
     field: Option<HeightField>,
     error: Option<String>,
 }
@@ -649,28 +654,20 @@ fn measure_world(
         m.probe_fraction * mean_r,
         0.0,
     );
-    let (hole, settled_hole, field, error) = match hf {
+    let (hole, field, error) = match hf {
         Ok(hf) if !positions.is_empty() => {
             let open_depth = m.open_depth_diameters * 2.0 * mean_r;
             let hole = measure_hole(&hf, surface, [0.0, 0.0], open_depth, reach);
-            let settled = surface_level(&hf, m.wall_margin_diameters * 2.0 * mean_r);
-            let settled_hole = measure_hole(&hf, settled, [0.0, 0.0], open_depth, reach);
-            (Some(hole), Some(settled_hole), Some(hf), None)
+            (Some(hole), Some(hf), None)
         }
-        Ok(_) => (
-            None,
-            None,
-            None,
-            Some("no grains left to measure".to_owned()),
-        ),
-        Err(e) => (None, None, None, Some(e.to_string())),
+        Ok(_) => (None, None, Some("no grains left to measure".to_owned())),
+        Err(e) => (None, None, Some(e.to_string())),
     };
     Measured {
         positions,
         radii,
         carried_out,
         hole,
-        settled_hole,
         field,
         error,
     }
