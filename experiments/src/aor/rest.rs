@@ -103,7 +103,7 @@ impl std::fmt::Display for NotYet {
             NotYet::TooFewChecks => "too few checks to judge",
             NotYet::NoAngle => "no angle measured at some of the last checks",
             NotYet::GrainsChanged => "grains still entering or leaving the heap",
-            NotYet::KineticEnergy => "kinetic energy above the threshold",
+            NotYet::KineticEnergy => "translational kinetic energy above the threshold",
             NotYet::AngleRange => "angles spread beyond the tolerance",
             NotYet::Creep => "angle creeping faster than settle.max_creep_deg_per_s",
         })
