@@ -180,10 +180,9 @@ impl ShearResult {
     /// 2 000 samples a stage, about 0.5 MB for its four stages. The peaks, residuals and
     /// fits are computed from the full series before and are unchanged.
     pub fn thinned(&self, max_per_stage: usize) -> ShearResult {
-        let max = max_per_stage.max(3);
         let mut out = self.clone();
         for stage in &mut out.stages {
-            stage.series = thin_series(&stage.series, max);
+            stage.series = thin_series(&stage.series, max_per_stage);
         }
         out
     }
