@@ -21,8 +21,9 @@ pub enum RollingModel {
     /// angular velocity direction and Ri the distance from its centre to the contact point.
     ///
     /// The torque does not vanish as ω → 0, so applied naively it flips ω's sign every step
-    /// (chatter). We limit the total rolling torque on a particle so that on its own it can at
-    /// most bring ω to zero within one step, never reverse it (|τ| <= I |ω| / Δt).
+    /// (chatter). We apply it as a brake on the new spin (the world's `rolling_brake`): after
+    /// the contact torques, |ω| is reduced by at most μr Fn Ri Δt / I and never reversed, so a
+    /// grain whose contact torque stays below the rolling moment does not turn at all.
     #[default]
     ConstantDirectionalTorque,
     /// Elastic-plastic spring-dashpot (Ai, Chen, Rotter & Ooi 2011, "model C"): a rolling

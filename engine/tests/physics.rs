@@ -415,41 +415,54 @@ fn epsd_rolling_friction_decelerates_at_its_plastic_limit() {
     assert!((measured / expected - 1.0).abs() < 0.02);
 }
 
-#[test]
-fn epsd_holds_a_sphere_on_an_incline_where_cdt_creeps() {
-    // Incline with tan θ = 0.1 below μr = 0.2: a rolling resistance of μr R Fn can hold the
-    // sphere. EPSD's spring builds up the holding torque at zero ω and the sphere stays put.
-    // CDT's torque is defined by ω's direction, so at ω = 0 it vanishes: the sphere starts to
-    // roll each step and the (chatter-limited) torque stops it again, leaving a creep at a
-    // speed of order α Δt R that does not decay.
-    let theta = 0.1f64.atan();
+/// Creep speed (m/s, down the slope) and ω sign changes of a sphere released at rest on an
+/// incline with tan θ = `slope`, μs 0.5 and μr 0.2, measured from 0.1 s to 0.5 s.
+fn incline_creep(model: RollingModel, slope: f64) -> (f64, u32) {
+    let theta = slope.atan();
     let g = Vec3::new(9.81 * theta.sin(), 0.0, -9.81 * theta.cos());
-    let mut results = Vec::new();
-    for model in [
-        RollingModel::ConstantDirectionalTorque,
-        RollingModel::epsd(),
-    ] {
-        let mut world = sphere_on_plane(0.5, 0.2, model, g, Vec3::zeros(), Vec3::zeros());
-        world.run_until(0.1);
-        let x1 = world.particles().position[0].x;
-        let mut sign_changes = 0;
-        let mut last = world.particles().angular_velocity[0].y;
-        while world.time() < 0.5 {
-            world.step();
-            let w = world.particles().angular_velocity[0].y;
-            if w * last < 0.0 {
-                sign_changes += 1;
-            }
-            last = w;
+    let mut world = sphere_on_plane(0.5, 0.2, model, g, Vec3::zeros(), Vec3::zeros());
+    world.run_until(0.1);
+    let x1 = world.particles().position[0].x;
+    let mut sign_changes = 0;
+    let mut last = world.particles().angular_velocity[0].y;
+    while world.time() < 0.5 {
+        world.step();
+        let w = world.particles().angular_velocity[0].y;
+        if w * last < 0.0 {
+            sign_changes += 1;
         }
-        let creep = (world.particles().position[0].x - x1) / (world.time() - 0.1);
-        println!("{model:?}: creep speed {creep:.3e} m/s, ω sign changes {sign_changes}");
-        results.push((creep, sign_changes));
+        last = w;
     }
-    let (cdt_creep, _) = results[0];
-    let (epsd_creep, _) = results[1];
-    assert!(cdt_creep > 1e-5, "CDT creeps down the incline");
+    let creep = (world.particles().position[0].x - x1) / (world.time() - 0.1);
+    println!(
+        "{model:?}, tan θ = {slope}: creep speed {creep:.3e} m/s, ω sign changes {sign_changes}"
+    );
+    (creep, sign_changes)
+}
+
+#[test]
+fn both_rolling_models_hold_a_sphere_on_an_incline_below_mu_r_and_cdt_lets_it_roll_above() {
+    // Incline with tan θ = 0.1 below μr = 0.2: a rolling resistance of μr R Fn can hold the
+    // sphere. EPSD's spring builds up the holding torque at zero ω. CDT brakes the new spin
+    // (`rolling_brake`): the contact torque never exceeds the brake, so ω stays exactly 0.
+    // (Until the brake was implicit, CDT's torque followed the old ω, vanished at ω = 0, and
+    // the sphere crept down at ~1e-4 m/s, a speed proportional to Δt.)
+    let (cdt_creep, cdt_flips) = incline_creep(RollingModel::ConstantDirectionalTorque, 0.1);
+    let (epsd_creep, _) = incline_creep(RollingModel::epsd(), 0.1);
+    assert!(cdt_creep.abs() < 1e-8, "CDT holds the sphere");
+    assert_eq!(cdt_flips, 0, "CDT holds it without chatter");
     assert!(epsd_creep.abs() < 1e-8, "EPSD holds the sphere");
+    // tan θ = 0.3 above μr: the gravity torque beats the brake and the sphere rolls away,
+    // accelerating at (5/7) g (sin θ − μr cos θ); by 0.5 s it is past 1 cm/s.
+    let (cdt_roll, _) = incline_creep(RollingModel::ConstantDirectionalTorque, 0.3);
+    let theta = 0.3f64.atan();
+    let a = 5.0 / 7.0 * 9.81 * (theta.sin() - 0.2 * theta.cos());
+    // Mean speed over [0.1, 0.5] s of a sphere starting from rest at t = 0: a · 0.3 s.
+    assert!(
+        (cdt_roll / (a * 0.3) - 1.0).abs() < 0.05,
+        "CDT rolls down at (5/7) g (sin θ − μr cos θ): {cdt_roll} vs {}",
+        a * 0.3
+    );
 }
 
 /// Largest |ω| and number of ω sign changes per window of `window` seconds, from `start`.

@@ -485,32 +485,66 @@ pub(super) fn gather_particle(
         rolling += share.rolling_moment;
     }
     let w = s.angular_velocity;
-    if g.cdt && rolling > 0.0 {
-        // Constant directional torque against ω, limited so that on its own it can at most
-        // stop the rotation within this step (no chatter).
-        let speed = w.norm();
-        if speed > 0.0 {
-            let magnitude = rolling.min(speed / (inv_i * dt));
-            torque -= *w * (magnitude / speed);
-        }
-    }
+    // CDT's rolling moment, the most it may take off |ω| in this step (`rolling_brake`).
+    let brake = if g.cdt && rolling > 0.0 { rolling } else { 0.0 };
     *s.force = force;
-    *s.torque = torque;
     let (x, v) = (s.position, s.velocity);
     match g.after {
         AfterForces::EulerUpdate => {
             *v += force * (dt / mass);
-            *w += torque * (dt * inv_i);
+            let spin = *w + torque * (dt * inv_i);
+            if brake > 0.0 {
+                let braked = rolling_brake(spin, brake * dt * inv_i);
+                // The torque that took ω to `braked`: the contacts' plus the part of the
+                // rolling moment that acted.
+                torque = (braked - *w) * (1.0 / (dt * inv_i));
+                *w = braked;
+            } else {
+                *w = spin;
+            }
+            *s.torque = torque;
             // No periodic wrap here: positions move continuously between builds (see
             // `WRAPS`), and the rebuild wraps them.
             *x += *v * dt;
             mark.moved_too_far(*x) || domain.is_outside(*x)
         }
         AfterForces::HalfKick => {
+            // `torque` stays the contacts' alone: the next step's opening half kick applies it
+            // again. The brake acts once per step, here, with a whole step's impulse.
+            *s.torque = torque;
             *v += force * (0.5 * dt / mass);
-            *w += torque * (0.5 * dt * inv_i);
+            let spin = *w + torque * (0.5 * dt * inv_i);
+            *w = if brake > 0.0 {
+                rolling_brake(spin, brake * dt * inv_i)
+            } else {
+                spin
+            };
             false
         }
-        AfterForces::Nothing => false,
+        AfterForces::Nothing => {
+            *s.torque = torque;
+            false
+        }
+    }
+}
+
+/// Constant-directional-torque rolling friction as a brake on the new spin: `spin` is ω after
+/// this step's contact torques, `limit` = M Δt / I the most the rolling moment M can take off
+/// |ω| in one step. The brake opposes `spin` and stops at zero: below the limit the grain does
+/// not turn at all (rolling friction holds it, as static friction holds a sliding contact).
+///
+/// Why implicit (the direction is the new spin's, not the old): taken from the old ω, the
+/// torque vanishes at ω = 0, so a grain under a steady contact torque τ below M turns by
+/// τ Δt / I every step, a creep proportional to Δt that never stops (it slumped every heap, and
+/// with cohesion's stiff contacts it fed an unstable rotation-shear mode that made heaps
+/// boil at Δt = 0.2 Rayleigh times). Braking the new spin has neither: it is the Δt → 0 limit of
+/// the explicit rule, reached at any Δt, it never reverses ω and never adds energy.
+#[inline(always)]
+pub(super) fn rolling_brake(spin: Vec3, limit: f64) -> Vec3 {
+    let speed2 = spin.norm_squared();
+    if speed2 <= limit * limit {
+        Vec3::zeros()
+    } else {
+        spin * (1.0 - limit / speed2.sqrt())
     }
 }
