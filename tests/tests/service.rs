@@ -419,14 +419,15 @@ fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum()
 /// batch per experiment; the campaign must end verified with each response within its own
 /// tolerance.
 ///
-/// The targets are what this resolution can reach, not the paper's: the fast heap does not
-/// come to rest with more than about 3e4 J/m³ of linear cohesion (at 6e4 and above it creeps
-/// to the time cap), and within 0..3e4 the fast two-stress shear test reads an intercept of
-/// about -0.1 to 0.7 kPa whatever the cohesion (its noise, not the cohesion, decides), so the
-/// cohesion target is 0.5 ± 0.25 kPa, and this test shows the two-target machinery on the
-/// real engine, not a calibrated cohesion. 135 s on two shared cores (BENCHMARKS.md, "A whole
-/// campaign"); with its printout:
-/// `cargo test -p repose --test service two_target_campaign -- --nocapture`.
+/// The targets are what this resolution can reach, not the paper's: the fast funnel holds up
+/// grains with cohesion (measured at μs 0.45, seed 1: 3e4 J/m³ keeps 12.6 of the 25 g in the
+/// funnel, 6e4 16.1 g and 1.5e5 23.6 g, which leaves no flank to measure), so the cohesion stays
+/// within 0..2e4 J/m³; there the heap angle scatters by about 5° from seed to seed (μs 0.45,
+/// 1.5e4, seeds 1-4: 19.8-31.2°), hence 24° ± 20 % and three verification replicates; and the
+/// fast two-stress shear test reads an intercept of about -0.1 to 0.7 kPa whatever the
+/// cohesion (its noise, not the cohesion, decides), so the cohesion target is 0.5 ± 0.25 kPa.
+/// This test shows the two-target machinery on the real engine, not a calibrated cohesion.
+/// With its printout: `cargo test -p repose --test service two_target_campaign -- --nocapture`.
 #[test]
 fn a_two_target_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum() {
     let started = std::time::Instant::now();
@@ -451,18 +452,18 @@ fn a_two_target_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verifie
             }}
         },
         "targets": [
-            {"response": "aor.angle_deg", "target": 30.0, "tolerance": {"relative_pct": 10}},
+            {"response": "aor.angle_deg", "target": 24.0, "tolerance": {"relative_pct": 20}},
             {"response": "shear.cohesion_kpa", "target": 0.5, "tolerance": {"absolute": 0.25}}
         ],
         "factors": [
             {"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.3, "high": 0.6},
-            {"name": "ced", "path": "soil_soil.cohesion.energy_density", "low": 0.0, "high": 3.0e4}
+            {"name": "ced", "path": "soil_soil.cohesion.energy_density", "low": 0.0, "high": 2.0e4}
         ],
         "seed": 11,
         "screening": {"design": {"type": "factorial"}},
         "steepest": {"points_per_dispatch": 2, "max_points": 4, "start": "centre"},
         "response_surface": {"design": {"type": "box_behnken", "centre_points": 1}},
-        "verification": {"replicates": 2}
+        "verification": {"replicates": 3}
     });
     let created = service.post("/v1/campaigns", &campaign);
     let id = created["id"].as_str().unwrap().to_owned();
