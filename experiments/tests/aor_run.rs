@@ -19,7 +19,11 @@ fn run(spec: &AorSpec) -> AorResult {
         Control::Continue
     })
     .expect("the fast preset builds");
-    let r = run.result;
+    check_heap(spec, run.result)
+}
+
+/// Prints a fast run and checks that it formed a heap that came to rest.
+fn check_heap(spec: &AorSpec, r: AorResult) -> AorResult {
     eprintln!(
         "soil_soil {} -> status {:?} angle {:?} (left {:?}, right {:?}) ended_by {:?} t {:.3} s \
          steps {} wall {:.1} s grains {:?}",
@@ -61,14 +65,10 @@ fn angle_with(set: &[(&str, &str)]) -> f64 {
     a
 }
 
-/// Ignored since the rest rule of issue 13c: at μr 0.40 the fast heap never comes to rest (see
-/// `a_steep_heap_that_keeps_creeping_is_reported_not_settled_with_its_creep`). The old rule
-/// stopped it at 0.8 s (39.4°) when the kinetic energy dipped below the threshold once; with a
-/// 4 s cap it slumps on to 24.0° at 4.2 s, still at −2.8°/s with the kinetic energy at
-/// 1e-5 to 1e-4 m g d. So the 9.7° → 40.1° this test asserted was a snapshot of a slump, and
-/// whether the settled angle rises with μr at this resolution is open.
+/// Ignored from the rest rule of issue 13c until 675dbdc: CDT's torque followed the old ω and
+/// the μr 0.40 heap crept past any cap (4 s). With the rolling brake it comes to rest at once
+/// (seed 1: 9.21° at μr 0.01, 40.97° at 0.40, both at rest by 1.2 s).
 #[test]
-#[ignore = "issue 13c: the μr 0.40 fast heap creeps past any cap tried (4 s); see docs/aor.md"]
 fn angle_rises_with_soil_soil_rolling_friction() {
     let low = angle_with(&[("soil_soil.rolling_friction", "0.01")]);
     let high = angle_with(&[("soil_soil.rolling_friction", "0.40")]);
@@ -76,22 +76,38 @@ fn angle_rises_with_soil_soil_rolling_friction() {
     assert!(high > low + 3.0, "{low} -> {high}");
 }
 
-/// The effect of static friction over the paper's range (≈ 2-3°) is smaller than the
-/// seed-to-seed spread of one 12 g heap at the fast resolution (18.6-26.3° at μs 0.44 over
-/// seeds 1-4), so one seed per level can rank them either way: the claim is about the mean
-/// over three seeds.
+/// The effect of static friction over the paper's range (≈ 2-6°) is smaller than the
+/// seed-to-seed spread of one 30 g heap at the fast resolution (19.4-25.2° at μs 0.44 over
+/// seeds 1, 2, 4), so one seed per level can rank them either way: the claim is about the mean
+/// over seeds. Since CDT rolling friction holds grains (675dbdc) the fast funnel's 17 mm outlet,
+/// 6.8 grains wide, jams in some pours (μs 0.44: seed 3; μs 0.68: seeds 3 and 4; 342-573 of
+/// 1 376 grains stay in the funnel) and leaves a smaller heap: the means are over the seeds
+/// 1-4 whose funnel drained, at least two per level.
 #[test]
 fn angle_rises_with_soil_soil_static_friction() {
     let mean = |mu: &str| {
-        let angles: Vec<f64> = ["1", "2", "3"]
+        let angles: Vec<f64> = ["1", "2", "3", "4"]
             .iter()
-            .map(|seed| angle_with(&[("soil_soil.static_friction", mu), ("seed", seed)]))
+            .filter_map(|seed| {
+                let mut spec = AorSpec::fast();
+                spec.set("soil_soil.static_friction", mu).unwrap();
+                spec.set("seed", seed).unwrap();
+                let r = run_aor(&spec, &mut |_| Control::Continue)
+                    .expect("the fast preset builds")
+                    .result;
+                eprintln!(
+                    "static friction {mu}, seed {seed}: {:?}, held up {}",
+                    r.angle_deg, r.grains.held_up.count
+                );
+                (r.grains.held_up.count == 0).then(|| check_heap(&spec, r).angle_deg.unwrap())
+            })
             .collect();
+        assert!(angles.len() >= 2, "μs {mu}: drained pours {angles:?}");
         eprintln!("static friction {mu}: {angles:.2?}");
         angles.iter().sum::<f64>() / angles.len() as f64
     };
     let (low, high) = (mean("0.44"), mean("0.68"));
-    eprintln!("static friction 0.44 -> {low:.2}°, 0.68 -> {high:.2}° (means of 3 seeds)");
+    eprintln!("static friction 0.44 -> {low:.2}°, 0.68 -> {high:.2}° (means of drained pours)");
     assert!(high > low + 0.5, "{low} -> {high}");
 }
 
@@ -193,41 +209,21 @@ fn a_heap_cut_by_the_time_cap_reports_how_far_from_rest_it_was() {
 }
 
 #[test]
-fn a_steep_heap_that_keeps_creeping_is_reported_not_settled_with_its_creep() {
-    // μr 0.40 at the fast resolution: the heap stands at ~39° 0.6 s after insertion with the
-    // kinetic energy below the threshold at times (where the old rule stopped it), then slumps
-    // and rearranges by degrees every few tenths of a second until the cap.
+fn a_steep_heap_comes_to_rest_and_holds_its_angle() {
+    // μr 0.40 at the fast resolution. Until 675dbdc CDT's torque followed the old ω, so grains
+    // pushed by less than the rolling moment still turned a little every step: this heap stood
+    // at ~39° 0.6 s after insertion, then slumped by degrees until the cap (24.0° at 4.2 s,
+    // −2.8°/s). The rolling brake holds it: at rest, its angle flat to round-off. (A heap that
+    // does not come to rest reports its creep: `a_heap_cut_by_the_time_cap_…` above.)
     let mut spec = AorSpec::fast();
     spec.set("soil_soil.rolling_friction", "0.40").unwrap();
-    let run = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
-    let r = run.result;
-    eprintln!("{:?} {:?}", r.ended_by, r.message);
-    assert_eq!(r.ended_by, EndedBy::TimeCap, "{r:?}");
-    assert_eq!(r.status, RunStatus::NotSettled);
-    assert!(!r.came_to_rest && r.angle_deg.is_none());
-    assert!(
-        r.last_angle_deg.is_some(),
-        "the heap is measured as it stands"
-    );
-    let rest = r.rest.expect("a capped run reports its creep");
-    assert_eq!(rest.creep_checks, spec.settle.rest_checks());
-    // Not at rest by the angle: it moved by more than the rule allows over the last checks.
-    let rate = rest.creep_deg_per_s.unwrap();
-    let range = rest.angle_range_deg.unwrap();
-    assert!(
-        rate.abs() > spec.settle.max_creep_deg_per_s || range > spec.settle.angle_tolerance_deg,
-        "{rest}"
-    );
-    // The old rule would have ended it: a check with the kinetic energy below the threshold.
-    assert!(r
-        .checks
-        .iter()
-        .any(|c| c.kinetic_energy_ratio < spec.settle.kinetic_energy_threshold));
-    let message = r.message.unwrap();
-    assert!(
-        message.contains("°/s") && message.contains("limit"),
-        "{message}"
-    );
+    let r = run(&spec);
+    let angle = r.angle_deg.unwrap();
+    let rest = r.rest.unwrap();
+    eprintln!("μr 0.40: {angle:.2}°, {rest}");
+    assert!(angle > 35.0, "the steep heap stands: {angle}");
+    assert!(rest.angle_range_deg.unwrap() < 1e-3, "{rest}");
+    assert!(rest.creep_deg_per_s.unwrap().abs() < 0.05, "{rest}");
 }
 
 #[test]
