@@ -234,10 +234,8 @@ fn grain(position: Vec3) -> ParticleSpec {
     }
 }
 
-/// A grain placed touching the underside of a plate at z = 0, with `overlap`, under gravity;
-/// returns its centre height after `seconds`.
-fn hanging_grain(cohesion: Cohesion, overlap: f64, seconds: f64) -> f64 {
-    let mut world = world(cohesion, Vec3::new(0.0, 0.0, -9.81));
+/// A 100 mm square steel plate in the plane z = 0.
+fn add_plate(world: &mut World) {
     world
         .add_geometry(Geometry {
             name: "plate".into(),
@@ -246,6 +244,13 @@ fn hanging_grain(cohesion: Cohesion, overlap: f64, seconds: f64) -> f64 {
             material: PLATE,
         })
         .unwrap();
+}
+
+/// A grain placed touching the underside of a plate at z = 0, with `overlap`, under gravity;
+/// returns its centre height after `seconds`.
+fn hanging_grain(cohesion: Cohesion, overlap: f64, seconds: f64) -> f64 {
+    let mut world = world(cohesion, Vec3::new(0.0, 0.0, -9.81));
+    add_plate(&mut world);
     world
         .add_particle(grain(Vec3::new(0.001, 0.002, -(RADIUS - overlap))))
         .unwrap();
@@ -588,14 +593,7 @@ fn cohesive_clump_energy(k: f64, seconds: f64) -> (f64, f64) {
     let mut config = WorldConfig::new(dt, Domain::closed(Vec3::repeat(-0.1), Vec3::repeat(0.1)));
     config.gravity = Vec3::new(0.0, 0.0, -9.81);
     let mut world = World::new(materials, config).unwrap();
-    world
-        .add_geometry(Geometry {
-            name: "plate".into(),
-            mesh: plane(0.05, 10),
-            motion: Motion::stationary(Pose::identity()),
-            material: PLATE,
-        })
-        .unwrap();
+    add_plate(&mut world);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let a = 2.2 * r;
     for z in 0..6 {
