@@ -44,7 +44,8 @@ pub struct Particles {
     pub position: Vec<Vec3>,
     pub velocity: Vec<Vec3>,
     pub angular_velocity: Vec<Vec3>,
-    /// Force and torque of the last force evaluation (N, N·m).
+    /// Force and torque of the last force evaluation (N, N·m). CDT rolling friction is not in
+    /// `torque`: it brakes the spin in the integration (`world::kernel::rolling_brake`).
     pub force: Vec<Vec3>,
     pub torque: Vec<Vec3>,
     pub radius: Vec<f64>,

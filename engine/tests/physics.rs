@@ -423,16 +423,7 @@ fn incline_creep(model: RollingModel, slope: f64) -> (f64, u32) {
     let mut world = sphere_on_plane(0.5, 0.2, model, g, Vec3::zeros(), Vec3::zeros());
     world.run_until(0.1);
     let x1 = world.particles().position[0].x;
-    let mut sign_changes = 0;
-    let mut last = world.particles().angular_velocity[0].y;
-    while world.time() < 0.5 {
-        world.step();
-        let w = world.particles().angular_velocity[0].y;
-        if w * last < 0.0 {
-            sign_changes += 1;
-        }
-        last = w;
-    }
+    let (_, sign_changes) = omega_windows(&mut world, 0.1, 0.4, 1)[0];
     let creep = (world.particles().position[0].x - x1) / (world.time() - 0.1);
     println!(
         "{model:?}, tan θ = {slope}: creep speed {creep:.3e} m/s, ω sign changes {sign_changes}"

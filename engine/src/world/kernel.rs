@@ -485,46 +485,35 @@ pub(super) fn gather_particle(
         rolling += share.rolling_moment;
     }
     let w = s.angular_velocity;
-    // CDT's rolling moment, the most it may take off |ω| in this step (`rolling_brake`).
-    let brake = if g.cdt && rolling > 0.0 { rolling } else { 0.0 };
+    // The spin's change over `h` seconds: the torque's kick, then CDT's rolling moment as a
+    // brake (`rolling_brake`) with a whole step's impulse. `torque` stays the contacts' alone
+    // (Verlet's next opening half kick applies it again), so the brake acts once per step.
+    let kick_spin = |w: &mut Vec3, h: f64| {
+        let spin = *w + torque * (h * inv_i);
+        *w = if g.cdt && rolling > 0.0 {
+            rolling_brake(spin, rolling * dt * inv_i)
+        } else {
+            spin
+        };
+    };
     *s.force = force;
+    *s.torque = torque;
     let (x, v) = (s.position, s.velocity);
     match g.after {
         AfterForces::EulerUpdate => {
             *v += force * (dt / mass);
-            let spin = *w + torque * (dt * inv_i);
-            if brake > 0.0 {
-                let braked = rolling_brake(spin, brake * dt * inv_i);
-                // The torque that took ω to `braked`: the contacts' plus the part of the
-                // rolling moment that acted.
-                torque = (braked - *w) * (1.0 / (dt * inv_i));
-                *w = braked;
-            } else {
-                *w = spin;
-            }
-            *s.torque = torque;
+            kick_spin(w, dt);
             // No periodic wrap here: positions move continuously between builds (see
             // `WRAPS`), and the rebuild wraps them.
             *x += *v * dt;
             mark.moved_too_far(*x) || domain.is_outside(*x)
         }
         AfterForces::HalfKick => {
-            // `torque` stays the contacts' alone: the next step's opening half kick applies it
-            // again. The brake acts once per step, here, with a whole step's impulse.
-            *s.torque = torque;
             *v += force * (0.5 * dt / mass);
-            let spin = *w + torque * (0.5 * dt * inv_i);
-            *w = if brake > 0.0 {
-                rolling_brake(spin, brake * dt * inv_i)
-            } else {
-                spin
-            };
+            kick_spin(w, 0.5 * dt);
             false
         }
-        AfterForces::Nothing => {
-            *s.torque = torque;
-            false
-        }
+        AfterForces::Nothing => false,
     }
 }
 

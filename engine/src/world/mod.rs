@@ -586,7 +586,6 @@ mod tests {
             .unwrap()
     }
 
-    /// A dense, frictional, falling cloud over a floor: 3000 particles (six chunks).
     /// A flat steel floor at z = 0 over [-0.01, hi]² (two triangles).
     fn add_floor(world: &mut World, steel: MaterialId, hi: f64) {
         let floor = TriMesh::new(
@@ -609,6 +608,7 @@ mod tests {
             .unwrap();
     }
 
+    /// A dense, frictional, falling cloud over a floor: 3000 particles (six chunks).
     fn cloud(rolling_model: RollingModel, integrator: Integrator) -> World {
         let materials = frictional_paper_table(0.4);
         let soil = materials.id("soil").unwrap();
