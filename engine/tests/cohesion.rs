@@ -640,3 +640,50 @@ fn a_cohesive_clump_with_cdt_rolling_friction_comes_to_rest_at_the_presets_time_
     assert!(energy < 1e-6, "the cohesive clump comes to rest");
     assert!(spin < 1e-9, "its grains do not turn");
 }
+
+/// `World::for_each_contact` reports what each contact carries: in a column of grains at rest
+/// on a plate, the contact under grain k holds the weight of k and the grains above it, with
+/// cohesion as without (the bond's pull and the extra Hertz load cancel in the net force).
+#[test]
+fn contact_forces_of_a_resting_column_carry_the_weight_above() {
+    let n = 5;
+    let weight = grain_mass() * 9.81;
+    for cohesion in [
+        Cohesion::None,
+        Cohesion::Linear {
+            energy_density: 2.0e5,
+        },
+    ] {
+        let mut world = world(cohesion, Vec3::new(0.0, 0.0, -9.81));
+        add_plate(&mut world);
+        for k in 0..n {
+            let z = RADIUS + 2.0 * RADIUS * k as f64;
+            world.add_particle(grain(Vec3::new(0.0, 0.0, z))).unwrap();
+        }
+        world.run_until(0.5);
+        let mut contacts = Vec::new();
+        world.for_each_contact(|c| contacts.push(c));
+        assert_eq!(contacts.len(), n - 1, "{cohesion:?}: {contacts:?}");
+        for c in &contacts {
+            assert_eq!(
+                c.j,
+                c.i + 1,
+                "{cohesion:?}: pairs are neighbours in the column"
+            );
+            let above = (n - c.j) as f64 * weight;
+            println!(
+                "{cohesion:?}: contact {}-{}: {:.6e} N up on the upper grain, weight above {:.6e} N",
+                c.i, c.j, c.force_on_j.z, above
+            );
+            assert!(
+                (c.force_on_j.z / above - 1.0).abs() < 1e-3,
+                "{cohesion:?}: contact {}-{} carries {} N, weight above {above} N",
+                c.i,
+                c.j,
+                c.force_on_j.z
+            );
+            assert!(c.force_on_j.x.abs() + c.force_on_j.y.abs() < 1e-9 * above);
+            assert!((c.branch.z / (2.0 * RADIUS) - 1.0).abs() < 0.05 && c.branch.z > 0.0);
+        }
+    }
+}

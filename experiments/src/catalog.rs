@@ -18,7 +18,7 @@ use crate::drill::{
 use crate::progress::Control;
 use crate::replay::{ReplayError, ReplaySpec};
 use crate::shear::{
-    build_sample, run_shear_on_bed, sample_key, ShearError, ShearResult, ShearSpec, ShearStatus,
+    build_sample, run_shear_on_bed, sample_key, ShearError, ShearSpec, ShearStatus,
 };
 
 /// Settled drilling beds (and shear samples, which are drilling beds in the shear box) kept
@@ -444,8 +444,7 @@ pub fn run_experiment_with_beds(
             run.result.wall_time_s += bed_wall_s;
             // The series thinned: a job server takes at most 64 KiB of details.
             let details =
-                serde_json::to_value(run.result.thinned(ShearResult::DETAILS_SAMPLES_PER_STAGE))
-                    .expect("ShearResult serialises");
+                serde_json::to_value(run.result.for_details()).expect("ShearResult serialises");
             if run.result.status == ShearStatus::MeasurementFailed {
                 return Err(ExperimentError::NoResult {
                     message: format!(

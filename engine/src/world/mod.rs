@@ -255,6 +255,19 @@ pub struct World {
     kernel: KernelChoice,
 }
 
+/// One particle-particle contact as [`World::for_each_contact`] reports it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactForce {
+    /// The pair's particles (indices into [`World::particles`]), `i < j`.
+    pub i: usize,
+    pub j: usize,
+    /// The force particle i exerts on particle j (the contact law with its cohesion), N; j
+    /// exerts the opposite on i.
+    pub force_on_j: Vec3,
+    /// From i's centre to j's (the minimum image across periodic faces), m.
+    pub branch: Vec3,
+}
+
 /// Which code computes the particle-particle contacts. Both give bit-identical results
 /// (tested); the choice exists to test and measure that.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -501,6 +514,39 @@ impl World {
                     .count()
             })
             .sum()
+    }
+
+    /// Every particle-particle pair in contact at the last force evaluation, with the force
+    /// it carried then (cohesion included), in pair-list order: the same sequence for any
+    /// thread count. The branch vector is taken at the current positions (one step after the
+    /// forces under symplectic Euler). Before the first step after particles were added or
+    /// removed there is no pair list for them and nothing is visited.
+    ///
+    /// This is what a stress measurement inside a granular sample needs (the Love-Weber
+    /// average `Σ f ⊗ l / V`, or the force across a plane), away from the walls whose loads
+    /// [`World::geometry_series`] records.
+    pub fn for_each_contact(&self, mut visit: impl FnMut(ContactForce)) {
+        let p = &self.particles;
+        let pl = &self.pairs;
+        if pl.first_pair.len() != p.len() + 1 {
+            return;
+        }
+        let d = &self.config.domain;
+        for i in 0..p.len() {
+            for k in pl.first_pair[i] as usize..pl.first_pair[i + 1] as usize {
+                let entry = pl.partner[k];
+                if entry & IN_CONTACT == 0 {
+                    continue;
+                }
+                let j = (entry & PARTNER_INDEX) as usize;
+                visit(ContactForce {
+                    i,
+                    j,
+                    force_on_j: pl.partner_share[k].force,
+                    branch: d.minimum_image(p.position[j] - p.position[i]),
+                });
+            }
+        }
     }
 
     /// Bytes of particle arrays, pair list and histories (lengths, not capacities).

@@ -130,6 +130,23 @@ pub fn shear_strength(
     })
 }
 
+/// The centred running mean of `values` over `width` samples (fewer at the ends, where the
+/// window is cut to the record).
+pub fn running_mean(values: &[f64], width: usize) -> Vec<f64> {
+    let half = width.max(1) / 2;
+    let mut prefix = Vec::with_capacity(values.len() + 1);
+    prefix.push(0.0);
+    for v in values {
+        prefix.push(prefix.last().copied().unwrap_or(0.0) + v);
+    }
+    (0..values.len())
+        .map(|k| {
+            let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(values.len()));
+            (prefix[hi] - prefix[lo]) / (hi - lo) as f64
+        })
+        .collect()
+}
+
 /// The least-squares line τ = c + σ tan φ through `points`.
 pub fn mohr_coulomb_fit(points: &[StrengthPoint]) -> Result<MohrCoulomb, ShearMeasureError> {
     for (k, p) in points.iter().enumerate() {
@@ -257,6 +274,14 @@ mod tests {
         println!("residual fit {fit:?}");
         assert!(fit.cohesion_kpa.abs() < 0.3, "{fit:?}");
         assert!((fit.friction_angle_deg - 27.0).abs() < 0.5, "{fit:?}");
+    }
+
+    #[test]
+    fn the_running_mean_averages_a_centred_window_cut_at_the_ends() {
+        let v = [1.0, 2.0, 3.0, 4.0, 5.0, 60.0];
+        assert_eq!(running_mean(&v, 1), v.to_vec());
+        assert_eq!(running_mean(&v, 3), vec![1.5, 2.0, 3.0, 4.0, 23.0, 32.5]);
+        assert_eq!(running_mean(&[], 5), Vec::<f64>::new());
     }
 
     #[test]

@@ -20,10 +20,11 @@ mod measure;
 mod picture;
 mod run;
 mod spec;
+mod window;
 
 pub use measure::{
-    mohr_coulomb_fit, shear_strength, MohrCoulomb, ShearMeasureError, ShearPoint, ShearRecord,
-    StrengthPoint,
+    mohr_coulomb_fit, running_mean, shear_strength, MohrCoulomb, ShearMeasureError, ShearPoint,
+    ShearRecord, StrengthPoint,
 };
 pub use picture::{curves_svg, strength_svg};
 pub use run::{
@@ -32,5 +33,6 @@ pub use run::{
 };
 pub use spec::{
     BoxSpec, ConsolidationSpec, SampleSpec, ServoSpec, ShearMotionSpec, ShearSpec, SpecError,
-    PRESETS,
+    WindowSpec, PRESETS,
 };
+pub use window::{PlaneStress, Window};

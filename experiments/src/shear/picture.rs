@@ -162,11 +162,12 @@ pub fn curves_svg(result: &ShearResult) -> String {
     s
 }
 
-/// The Mohr-Coulomb lines τ = c + σ tan φ through the peaks (filled points, solid line) and the
+/// The Mohr-Coulomb lines τ = c + σ tan φ: the soil's (the measurement window's peaks, green
+/// squares, solid line), and the box's through its peaks (filled points, solid line) and
 /// residuals (open points, dashed line), against the normal stress on the shear plane.
 pub fn strength_svg(result: &ShearResult) -> String {
     let mut s = header(WIDTH, HEIGHT);
-    let title = match &result.peak_fit {
+    let title = match &result.window_fit {
         Some(f) => format!(
             "Mohr-Coulomb: c = {:.2} kPa, φ = {:.1}° (R² = {:.3}, {} stresses)",
             f.cohesion_kpa, f.friction_angle_deg, f.r_squared, f.points
@@ -177,16 +178,19 @@ pub fn strength_svg(result: &ShearResult) -> String {
     let sigma_max = result
         .stages
         .iter()
-        .map(|st| st.plane_normal_stress_kpa)
+        .map(|st| st.plane_normal_stress_kpa.max(st.window_normal_stress_kpa))
         .fold(0.0, f64::max);
     let x1 = 1.1 * sigma_max.max(1e-6);
     let mut y0 = 0.0f64;
     let mut y1 = 0.0f64;
     for st in &result.stages {
-        y1 = y1.max(st.peak_kpa).max(st.residual_kpa);
+        y1 = y1
+            .max(st.peak_kpa)
+            .max(st.residual_kpa)
+            .max(st.window_peak_kpa);
         y0 = y0.min(st.residual_kpa);
     }
-    for fit in [&result.peak_fit, &result.residual_fit]
+    for fit in [&result.window_fit, &result.peak_fit, &result.residual_fit]
         .into_iter()
         .flatten()
     {
@@ -209,12 +213,13 @@ pub fn strength_svg(result: &ShearResult) -> String {
         "shear stress τ (kPa)",
     );
     let lines = [
-        (&result.peak_fit, "#1f5fa8", "", "peak"),
+        (&result.window_fit, "#1e8449", "", "soil (window)"),
+        (&result.peak_fit, "#1f5fa8", "", "box, peak"),
         (
             &result.residual_fit,
             "#d35400",
             " stroke-dasharray=\"6 4\"",
-            "residual",
+            "box, residual",
         ),
     ];
     for (k, (fit, colour, dash, name)) in lines.iter().enumerate() {
@@ -240,6 +245,12 @@ pub fn strength_svg(result: &ShearResult) -> String {
         }
     }
     for st in &result.stages {
+        let _ = writeln!(
+            s,
+            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"8\" height=\"8\" fill=\"#1e8449\"/>",
+            frame.x(st.window_normal_stress_kpa) - 4.0,
+            frame.y(st.window_peak_kpa) - 4.0
+        );
         let x = frame.x(st.plane_normal_stress_kpa);
         let _ = writeln!(
             s,

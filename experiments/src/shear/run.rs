@@ -31,9 +31,12 @@ use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, GeometryId, World, WorldConfig};
 use serde::{Deserialize, Serialize};
 
-use super::measure::{mohr_coulomb_fit, shear_strength, MohrCoulomb, ShearRecord, StrengthPoint};
+use super::measure::{
+    mohr_coulomb_fit, running_mean, shear_strength, MohrCoulomb, ShearRecord, StrengthPoint,
+};
 use super::picture::{curves_svg, strength_svg};
 use super::spec::{ShearSpec, SpecError};
+use super::window::{PlaneStress, Window};
 use crate::drill::{
     bed_key, build_bed, kinetic_energy_ratio, setup, BedInfo, DrillError, SettledBed, Setup,
 };
@@ -110,6 +113,12 @@ pub struct ShearSample {
     pub lid_stress_kpa: f64,
     /// Height of the lid above the floor, mm (its rise is the sample's dilation).
     pub lid_z_mm: f64,
+    /// The soil's own shear and normal stress on the plane, in the measurement window away
+    /// from the walls (`window.*`), kPa.
+    #[serde(default)]
+    pub window_shear_kpa: f64,
+    #[serde(default)]
+    pub window_normal_kpa: f64,
 }
 
 /// One normal stress: consolidation and shearing.
@@ -129,6 +138,15 @@ pub struct ShearStage {
     pub peak_displacement_mm: f64,
     /// Mean shear stress over the last `shear.residual_fraction` of the displacement.
     pub residual_kpa: f64,
+    /// The soil's own normal stress on the plane in the measurement window (mean while
+    /// shearing), and its shear stress's peak (of the record smoothed over a twentieth of the
+    /// displacement) and residual, kPa.
+    #[serde(default)]
+    pub window_normal_stress_kpa: f64,
+    #[serde(default)]
+    pub window_peak_kpa: f64,
+    #[serde(default)]
+    pub window_residual_kpa: f64,
     /// The lid's mean stress while shearing (how well the servo held it), kPa.
     pub mean_lid_stress_kpa: f64,
     /// Rise of the lid from the start to the end of shearing, mm (positive: dilation).
@@ -149,10 +167,16 @@ pub struct ShearStage {
 pub struct ShearResult {
     pub status: ShearStatus,
     pub message: Option<String>,
-    /// Of the peak strength line (the usual reading of a direct shear test).
+    /// The soil's strength: of `window_fit`.
     pub cohesion_kpa: Option<f64>,
     pub friction_angle_deg: Option<f64>,
-    /// The Mohr-Coulomb fit through the peaks and through the residuals (quality included).
+    /// The Mohr-Coulomb fit of the soil's own stresses in the measurement window, away from
+    /// the box's walls: each stage's window normal stress and window peak.
+    #[serde(default)]
+    pub window_fit: Option<MohrCoulomb>,
+    /// The Mohr-Coulomb fits of what the box's forces read (the lid's and the lower half's,
+    /// as a lab's box reads them): through the peaks and through the residuals. The walls'
+    /// share is in them (docs/shear.md, "Where the strength is read").
     pub peak_fit: Option<MohrCoulomb>,
     pub residual_fit: Option<MohrCoulomb>,
     pub stages: Vec<ShearStage>,
@@ -171,8 +195,14 @@ pub struct ShearResult {
 }
 
 impl ShearResult {
-    /// Samples kept per stage in a job's `details` ([`Self::thinned`]).
-    pub const DETAILS_SAMPLES_PER_STAGE: usize = 60;
+    /// Samples kept over all stages in a job's `details` ([`Self::for_details`]).
+    pub const DETAILS_SAMPLES: usize = 180;
+
+    /// The copy a job's `details` hold: [`Self::thinned`] to [`Self::DETAILS_SAMPLES`] over
+    /// all stages (at least 3 a stage), about 200 bytes of JSON a sample.
+    pub fn for_details(&self) -> ShearResult {
+        self.thinned((Self::DETAILS_SAMPLES / self.stages.len().max(1)).max(3))
+    }
 
     /// A copy whose stage series keep at most `max_per_stage` samples, evenly spaced, the
     /// first, the last and the peak's included (`max_per_stage` at least 3). A job server
@@ -187,15 +217,17 @@ impl ShearResult {
         out
     }
 
-    /// Scalar results for a job server: `cohesion_kpa`, `friction_angle_deg`, `r_squared`,
-    /// `rmse_kpa`, `cohesion_std_error_kpa` (with three or more stresses), the same for the
-    /// residual line (`residual_cohesion_kpa`, `residual_friction_angle_deg`,
-    /// `residual_r_squared`), `max_peak_kpa`, `mean_dilation_mm`, `particles`,
+    /// Scalar results for a job server: the soil's strength (the window's line)
+    /// `cohesion_kpa`, `friction_angle_deg`, `r_squared`, `rmse_kpa`, `cohesion_std_error_kpa`
+    /// (with three or more stresses); the box's peak line (`box_cohesion_kpa`,
+    /// `box_friction_angle_deg`, `box_r_squared`) and residual line (`residual_cohesion_kpa`,
+    /// `residual_friction_angle_deg`, `residual_r_squared`); `max_peak_kpa` (the box's),
+    /// `mean_dilation_mm`, `particles`,
     /// `simulated_time_s`, and `came_to_rest` (1 when the sample settled and every stage
     /// consolidated, else 0; such a run is still measured, like the angle-of-repose runs).
     pub fn metrics(&self) -> std::collections::BTreeMap<String, f64> {
         let mut m = std::collections::BTreeMap::new();
-        let Some(peak) = &self.peak_fit else {
+        let Some(peak) = &self.window_fit else {
             return m;
         };
         let ok = self.status == ShearStatus::Ok;
@@ -220,6 +252,11 @@ impl ShearResult {
             ("particles", Some(self.particles as f64)),
             ("simulated_time_s", Some(self.simulated_time_s)),
         ];
+        if let Some(b) = &self.peak_fit {
+            values.push(("box_cohesion_kpa", Some(b.cohesion_kpa)));
+            values.push(("box_friction_angle_deg", Some(b.friction_angle_deg)));
+            values.push(("box_r_squared", Some(b.r_squared)));
+        }
         if let Some(r) = &self.residual_fit {
             values.push(("residual_cohesion_kpa", Some(r.cohesion_kpa)));
             values.push(("residual_friction_angle_deg", Some(r.friction_angle_deg)));
@@ -404,8 +441,18 @@ fn shear(
             .collect();
         mohr_coulomb_fit(&points)
     };
-    let peak = fit(|st| st.peak_kpa);
+    let box_peak = fit(|st| st.peak_kpa).ok();
     let residual = fit(|st| st.residual_kpa).ok();
+    // The soil's strength: the window's stresses (see `window`), not the box's forces.
+    let peak = mohr_coulomb_fit(
+        &stages
+            .iter()
+            .map(|st| StrengthPoint {
+                normal_stress_pa: 1e3 * st.window_normal_stress_kpa,
+                shear_stress_pa: 1e3 * st.window_peak_kpa,
+            })
+            .collect::<Vec<_>>(),
+    );
     let (status, message) = match &peak {
         Err(e) => (ShearStatus::MeasurementFailed, Some(e.to_string())),
         Ok(_) if !bed.settled => (
@@ -437,7 +484,8 @@ fn shear(
         message,
         cohesion_kpa: peak.map(|f| f.cohesion_kpa),
         friction_angle_deg: peak.map(|f| f.friction_angle_deg),
-        peak_fit: peak,
+        window_fit: peak,
+        peak_fit: box_peak,
         residual_fit: residual,
         stages,
         bed: BedInfo {
@@ -506,6 +554,12 @@ fn mean_force(world: &World, id: GeometryId) -> Vec3 {
 /// A stage's progress: consolidation is the first 30 % (against its time cap), shearing the
 /// rest (against the displacement).
 const CONSOLIDATION_SHARE: f64 = 0.3;
+
+/// Samples of the window's stresses per servo interval (each a pass over the contacts).
+const WINDOW_SAMPLES_PER_INTERVAL: u64 = 4;
+
+/// The window's shear record is smoothed over 1/this of its samples before its peak is taken.
+const WINDOW_SMOOTHING_DIVISOR: usize = 20;
 
 fn run_stage(
     spec: &ShearSpec,
@@ -684,9 +738,29 @@ fn run_stage(
     set_motion(&mut world, upper, Vec3::new(v, 0.0, 0.0))?;
     let mut series = Vec::new();
     let mut plane_force = 0.0;
+    // The soil's own stresses (`Window`): the window follows the part of the plane the two
+    // halves still share, inset from its walls; sampled a few times per interval.
+    let d = 2.0 * r_max;
+    let inset = spec.window.margin_grains * d;
+    let half_slab = 0.5 * spec.window.thickness_grains * d;
+    let window_at = |u: f64| Window {
+        x: [-0.5 * side + u + inset, 0.5 * side - inset],
+        y: [-0.5 * side + inset, 0.5 * side - inset],
+        z: [h - half_slab, h + half_slab],
+    };
+    let per_sample = (steps_per_control / WINDOW_SAMPLES_PER_INTERVAL).max(1);
     loop {
         set_motion(&mut world, lid, Vec3::new(v, 0.0, lid_speed(force)))?;
-        world.run(steps_per_control);
+        let (mut ran, mut samples, mut inner) = (0, 0.0, PlaneStress::default());
+        while ran < steps_per_control {
+            let k = per_sample.min(steps_per_control - ran);
+            world.run(k);
+            ran += k;
+            let s = window_at(v * (world.time() - t_start)).stress_in(&world);
+            inner.normal_pa += s.normal_pa;
+            inner.shear_pa += s.shear_pa;
+            samples += 1.0;
+        }
         let lid_force = mean_force(&world, lid).z;
         force += smoothing * (lid_force - force);
         let shear_force = mean_force(&world, lower).x;
@@ -701,6 +775,8 @@ fn run_stage(
             shear_stress_kpa: 1e-3 * shear_force / area,
             lid_stress_kpa: 1e-3 * lid_force / area,
             lid_z_mm: 1e3 * lid_z(&world),
+            window_shear_kpa: 1e-3 * inner.shear_pa / samples,
+            window_normal_kpa: 1e-3 * inner.normal_pa / samples,
         });
         let done = v * (t - t_start) >= spec.shear.displacement;
         check(
@@ -727,6 +803,23 @@ fn run_stage(
     };
     let strength = shear_strength(&record, spec.shear.residual_fraction)
         .map_err(|e| build_error("shear record", e))?;
+    // The window's record: its mean normal stress, and its shear stress smoothed over a
+    // twentieth of the displacement before the peak is taken (a few hundred contacts cross
+    // the window's planes; their sum jitters by several per cent from sample to sample, and
+    // the largest of a jittering record overstates the peak).
+    let n = series.len();
+    let window_normal_kpa = series.iter().map(|p| p.window_normal_kpa).sum::<f64>() / n as f64;
+    let raw: Vec<f64> = series.iter().map(|p| 1e3 * p.window_shear_kpa).collect();
+    let window = shear_strength(
+        &ShearRecord {
+            normal_stress_pa: 1e3 * window_normal_kpa,
+            area_m2: 1.0,
+            displacement_m: record.displacement_m.clone(),
+            shear_force_n: running_mean(&raw, (n / WINDOW_SMOOTHING_DIVISOR).max(1)),
+        },
+        spec.shear.residual_fraction,
+    )
+    .map_err(|e| build_error("window record", e))?;
     let mean_lid = series.iter().map(|p| p.lid_stress_kpa).sum::<f64>() / series.len() as f64;
     Ok(ShearStage {
         normal_stress_kpa: sigma_kpa,
@@ -736,6 +829,9 @@ fn run_stage(
         peak_kpa: 1e-3 * strength.peak_pa,
         peak_displacement_mm: 1e3 * strength.peak_displacement_m,
         residual_kpa: 1e-3 * strength.residual_pa,
+        window_normal_stress_kpa: window_normal_kpa,
+        window_peak_kpa: 1e-3 * window.peak_pa,
+        window_residual_kpa: 1e-3 * window.residual_pa,
         mean_lid_stress_kpa: mean_lid,
         dilation_mm: 1e3 * (lid_z(&world) - z_start),
         kinetic_energy_ratio,
@@ -757,6 +853,8 @@ mod tests {
             shear_stress_kpa: 8.0 * (1.0 - (-x / 300.0).exp()) + 0.3 * (x * 0.37).sin(),
             lid_stress_kpa: 20.0 + 0.1 * (x * 0.11).cos(),
             lid_z_mm: 71.234_567_891 - x * 1.0e-4,
+            window_shear_kpa: 8.1 * (1.0 - (-x / 300.0).exp()) + 0.4 * (x * 0.29).sin(),
+            window_normal_kpa: 21.0 + 0.5 * (x * 0.13).cos(),
         }
     }
 
@@ -768,7 +866,7 @@ mod tests {
             .iter()
             .map(|s| s.shear_stress_kpa)
             .fold(f64::MIN, f64::max);
-        let max = ShearResult::DETAILS_SAMPLES_PER_STAGE;
+        let max = ShearResult::DETAILS_SAMPLES / 4;
         let thin = thin_series(&series, max);
         assert!(thin.len() <= max && thin.len() >= max - 2, "{}", thin.len());
         assert_eq!(thin[0], series[0]);
@@ -778,7 +876,7 @@ mod tests {
             .windows(2)
             .all(|w| w[0].displacement_mm < w[1].displacement_mm));
         // Four stages of it stay well inside the server's 64 KiB (the rest of a result is
-        // about 2 KB); the full series are about 0.5 MB.
+        // about 2 KB); the full series are about 0.6 MB.
         let four = serde_json::to_string(&vec![thin.clone(); 4]).unwrap();
         assert!(four.len() < 40 * 1024, "{}", four.len());
         let full = serde_json::to_string(&vec![series.clone(); 4]).unwrap();

@@ -30,6 +30,8 @@
 //! | `shear.speed` | speed of the upper half (and the lid) along +x, m/s | 0.005 | 0.02 |
 //! | `shear.displacement` | shear displacement at the end of a stage, m | 0.01 | 0.006 |
 //! | `shear.residual_fraction` | the residual strength is the mean over this last fraction of the displacement | 0.2 | 0.2 |
+//! | `window.margin_grains` | the measurement window keeps this many of the largest grains' diameters from every wall of the part of the plane both halves share | 2 | 2 |
+//! | `window.thickness_grains` | the window's slab around the shear plane, in the largest grains' diameters | 2 | 2 |
 //! | `time_step_rayleigh_fraction` | Δt as a fraction of the Rayleigh time of the smallest grain (0.2, the other tests' value, is unstable under these loads: see below) | 0.08 | 0.08 |
 //! | `wall_time_cap` | wall-clock seconds before giving up (`null`: none) | null | null |
 //! | `seed` | seed of the sample (unless `bed.seed`) | 1 | 1 |
@@ -144,6 +146,26 @@ pub struct ShearMotionSpec {
     pub residual_fraction: f64,
 }
 
+/// Where the soil's own stresses are measured (`run::Window`): a slab around the shear plane,
+/// inset from the box's walls, in diameters of the largest grain.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindowSpec {
+    /// Distance kept from every wall of the part of the plane the two halves still share.
+    pub margin_grains: f64,
+    /// Thickness of the slab, centred on the plane.
+    pub thickness_grains: f64,
+}
+
+impl Default for WindowSpec {
+    fn default() -> Self {
+        WindowSpec {
+            margin_grains: 2.0,
+            thickness_grains: 2.0,
+        }
+    }
+}
+
 /// A complete direct shear experiment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -166,6 +188,9 @@ pub struct ShearSpec {
     pub servo: ServoSpec,
     pub consolidation: ConsolidationSpec,
     pub shear: ShearMotionSpec,
+    /// The measurement window inside the sample.
+    #[serde(default)]
+    pub window: WindowSpec,
     #[serde(default = "default_rayleigh_fraction")]
     pub time_step_rayleigh_fraction: f64,
     /// Wall-clock cap for the whole run (sample included), s; `None`: none.
@@ -231,6 +256,7 @@ impl ShearSpec {
                 displacement: 0.01,
                 residual_fraction: 0.2,
             },
+            window: WindowSpec::default(),
             time_step_rayleigh_fraction: 0.08,
             wall_time_cap: None,
             seed: 1,
@@ -438,6 +464,35 @@ impl Spec for ShearSpec {
             return Err(invalid(
                 "shear.residual_fraction",
                 format!("must be in (0, 1], got {f}"),
+            ));
+        }
+        let w = &self.window;
+        if !(w.margin_grains.is_finite() && w.margin_grains >= 0.0) {
+            return Err(invalid(
+                "window.margin_grains",
+                format!("must be finite and >= 0, got {}", w.margin_grains),
+            ));
+        }
+        positive("window.thickness_grains", w.thickness_grains)?;
+        let d = 2.0 * r;
+        let width = self.shear_box.side - self.shear.displacement - 2.0 * w.margin_grains * d;
+        if width < 2.0 * d {
+            return Err(invalid(
+                "window.margin_grains",
+                format!(
+                    "leaves a window {width:.4} m wide at the end of the displacement; it needs \
+                     at least two of the largest grains ({:.4} m)",
+                    2.0 * d
+                ),
+            ));
+        }
+        if 0.5 * w.thickness_grains * d > h {
+            return Err(invalid(
+                "window.thickness_grains",
+                format!(
+                    "makes a slab reaching below the floor: at most {:.2} with box.half_height {h}",
+                    2.0 * h / d
+                ),
             ));
         }
         // The remaining sample fields (packing, settle criteria, time step, wall-time cap)
