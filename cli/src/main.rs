@@ -8,6 +8,7 @@ mod bench_cmd;
 mod client;
 mod design_cmd;
 mod drill_cmd;
+mod ladder_cmd;
 mod levels;
 mod local_run;
 mod server_cmd;
@@ -48,6 +49,9 @@ enum Command {
     Drill(drill_cmd::DrillArgs),
     /// Direct shear virtual experiment: cohesion and friction angle (Mohr-Coulomb) of the soil.
     Shear(shear_cmd::ShearArgs),
+    /// Chart angle-of-repose runs (a grain-size or mass ladder): angle against heap height in
+    /// grain diameters, as SVG.
+    Ladder(ladder_cmd::LadderArgs),
     /// Run the job server (REST API, SQLite) until Ctrl-C or SIGTERM.
     Server(server_cmd::ServerArgs),
     /// Create, list and revoke the job server's access tokens (user and worker).
@@ -93,6 +97,7 @@ fn main() -> ExitCode {
         Command::Aor(args) => aor_cmd::run(&args),
         Command::Drill(args) => drill_cmd::run(&args),
         Command::Shear(args) => shear_cmd::run(&args),
+        Command::Ladder(args) => ladder_cmd::run(&args),
         Command::Worker(args) => worker_cmd::run_worker(&args),
         Command::Up(args) => up_cmd::run(&args),
         Command::Submit(args) => client::submit(&args),

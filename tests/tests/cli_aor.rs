@@ -37,6 +37,39 @@ fn aor_writes_result_svg_and_csv() {
     }
     let csv = std::fs::read_to_string(out.join("final.csv")).unwrap();
     assert!(csv.lines().count() > 400);
+
+    // `repose ladder` charts runs given as folders or result files; anything else is one line
+    // and exit status 2.
+    let chart = dir.path().join("ladder.svg");
+    let result = out.join("result.json");
+    let o = repose(&[
+        "ladder",
+        "--out",
+        chart.to_str().unwrap(),
+        out.to_str().unwrap(),
+        result.to_str().unwrap(),
+    ]);
+    if file["angle_deg"].is_number() {
+        assert!(o.status.success(), "stderr: {}", stderr(&o));
+        let rows: Vec<String> = stdout(&o).lines().map(str::to_owned).collect();
+        assert_eq!(rows.len(), 3, "{rows:?}");
+        assert!(rows[1].starts_with("run,"), "{rows:?}");
+        assert_eq!(rows[1], rows[2]);
+        let svg = std::fs::read_to_string(&chart).unwrap();
+        assert_eq!(svg.matches("<circle").count(), 2);
+    } else {
+        assert_eq!(o.status.code(), Some(2));
+        assert!(stderr(&o).contains("measured no heap"), "{}", stderr(&o));
+    }
+    let o = repose(&[
+        "ladder",
+        "--out",
+        chart.to_str().unwrap(),
+        out.join("final.csv").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(stderr(&o).trim().lines().count(), 1, "{}", stderr(&o));
+    assert!(stderr(&o).contains("is not an angle-of-repose result"));
 }
 
 #[test]

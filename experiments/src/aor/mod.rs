@@ -35,12 +35,14 @@
 //! # Ok::<(), repose_experiments::aor::MeasureError>(())
 //! ```
 
+mod ladder;
 mod measure;
 mod picture;
 mod rest;
 mod run;
 mod spec;
 
+pub use ladder::{ladder_svg, LadderPoint};
 pub use measure::{
     measure_angle_of_repose, AngleOfRepose, DirectionProfile, FlankFit, MeasureError,
     MeasureSettings, ProjectionPlane, SideProjection,

@@ -4,92 +4,14 @@
 
 use std::fmt::Write as _;
 
-use crate::svg::{escape, header, tick_step, trim};
+use crate::svg::{escape, header, trim, Frame, HEIGHT, ML, MT, WIDTH};
 
 use super::run::ShearResult;
-
-const ML: f64 = 70.0;
-const MR: f64 = 30.0;
-const MT: f64 = 60.0;
-const MB: f64 = 50.0;
-const WIDTH: f64 = 760.0;
-const HEIGHT: f64 = 500.0;
 
 /// One colour per stage, cycling.
 const COLOURS: [&str; 6] = [
     "#1f5fa8", "#d35400", "#27ae60", "#8e44ad", "#c0392b", "#7f8c8d",
 ];
-
-/// The plot area mapping data (x in `[x0, x1]`, y in `[y0, y1]`) to the page.
-struct Frame {
-    x0: f64,
-    x1: f64,
-    y0: f64,
-    y1: f64,
-}
-
-impl Frame {
-    fn x(&self, v: f64) -> f64 {
-        ML + (v - self.x0) / (self.x1 - self.x0) * (WIDTH - ML - MR)
-    }
-    fn y(&self, v: f64) -> f64 {
-        MT + (self.y1 - v) / (self.y1 - self.y0) * (HEIGHT - MT - MB)
-    }
-
-    /// Box, zero lines, ticks and axis labels.
-    fn axes(&self, s: &mut String, x_label: &str, y_label: &str) {
-        let (w, h) = (WIDTH - ML - MR, HEIGHT - MT - MB);
-        let _ = writeln!(
-            s,
-            "<rect x=\"{ML}\" y=\"{MT}\" width=\"{w:.1}\" height=\"{h:.1}\" fill=\"none\" stroke=\"#999\"/>"
-        );
-        if self.y0 < 0.0 && self.y1 > 0.0 {
-            let _ = writeln!(
-                s,
-                "<line x1=\"{ML}\" y1=\"{0:.1}\" x2=\"{1:.1}\" y2=\"{0:.1}\" stroke=\"#bbb\"/>",
-                self.y(0.0),
-                ML + w
-            );
-        }
-        let step = tick_step(self.x1 - self.x0, 8);
-        let mut v = (self.x0 / step).ceil() * step;
-        while v <= self.x1 + 1e-12 {
-            let _ = writeln!(
-                s,
-                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" fill=\"#333\">{}</text>",
-                self.x(v),
-                MT + h + 18.0,
-                trim(v)
-            );
-            v += step;
-        }
-        let step = tick_step(self.y1 - self.y0, 6);
-        let mut v = (self.y0 / step).ceil() * step;
-        while v <= self.y1 + 1e-12 {
-            let _ = writeln!(
-                s,
-                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" fill=\"#333\">{}</text>",
-                ML - 6.0,
-                self.y(v) + 4.0,
-                trim(v)
-            );
-            v += step;
-        }
-        let _ = writeln!(
-            s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
-            ML + 0.5 * w,
-            HEIGHT - 10.0,
-            escape(x_label)
-        );
-        let _ = writeln!(
-            s,
-            "<text transform=\"translate(18 {:.1}) rotate(-90)\" text-anchor=\"middle\">{}</text>",
-            MT + 0.5 * h,
-            escape(y_label)
-        );
-    }
-}
 
 /// Shear stress (kPa) against displacement (mm), one curve per normal stress, each peak
 /// marked.
