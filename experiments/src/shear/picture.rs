@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use crate::svg::{escape, header, trim, Frame, HEIGHT, ML, MT, WIDTH};
 
-use super::run::ShearResult;
+use super::run::{ShearResult, ShearSample};
 
 /// One colour per stage, cycling.
 const COLOURS: [&str; 6] = [
@@ -30,8 +30,8 @@ pub fn curves_svg(result: &ShearResult) -> String {
     let (mut x1, mut y0, mut y1) = (0.0f64, 0.0f64, 0.0f64);
     for p in samples {
         x1 = x1.max(p.displacement_mm);
-        y0 = y0.min(p.shear_stress_kpa);
-        y1 = y1.max(p.shear_stress_kpa);
+        y0 = y0.min(p.shear_stress_kpa).min(p.window_shear_kpa);
+        y1 = y1.max(p.shear_stress_kpa).max(p.window_shear_kpa);
     }
     let frame = Frame {
         x0: 0.0,
@@ -42,18 +42,28 @@ pub fn curves_svg(result: &ShearResult) -> String {
     frame.axes(&mut s, "shear displacement (mm)", "shear stress (kPa)");
     for (k, stage) in result.stages.iter().enumerate() {
         let colour = COLOURS[k % COLOURS.len()];
-        let mut pts = String::new();
-        for p in &stage.series {
-            let _ = write!(
-                pts,
-                "{:.1},{:.1} ",
-                frame.x(p.displacement_mm),
-                frame.y(p.shear_stress_kpa)
-            );
-        }
+        // The box's shear stress (solid) and the soil's in the measurement window (dashed).
+        let curve = |tau: fn(&ShearSample) -> f64| {
+            let mut pts = String::new();
+            for p in &stage.series {
+                let _ = write!(
+                    pts,
+                    "{:.1},{:.1} ",
+                    frame.x(p.displacement_mm),
+                    frame.y(tau(p))
+                );
+            }
+            pts
+        };
         let _ = writeln!(
             s,
-            "<polyline fill=\"none\" stroke=\"{colour}\" stroke-width=\"1.3\" points=\"{pts}\"/>"
+            "<polyline fill=\"none\" stroke=\"{colour}\" stroke-width=\"1.3\" points=\"{}\"/>",
+            curve(|p| p.shear_stress_kpa)
+        );
+        let _ = writeln!(
+            s,
+            "<polyline fill=\"none\" stroke=\"{colour}\" stroke-width=\"1\" stroke-dasharray=\"5 3\" points=\"{}\"/>",
+            curve(|p| p.window_shear_kpa)
         );
         let _ = writeln!(
             s,
@@ -70,13 +80,14 @@ pub fn curves_svg(result: &ShearResult) -> String {
         );
         let _ = writeln!(
             s,
-            "<text x=\"{:.1}\" y=\"{:.1}\">σ = {} kPa: peak {:.2} kPa at {:.2} mm, residual {:.2} kPa{}</text>",
+            "<text x=\"{:.1}\" y=\"{:.1}\">σ = {} kPa: box peak {:.2} kPa at {:.2} mm, residual {:.2} kPa; window (dashed) peak {:.2} kPa{}</text>",
             ML + 42.0,
             legend_y + 4.0,
             trim(stage.normal_stress_kpa),
             stage.peak_kpa,
             stage.peak_displacement_mm,
             stage.residual_kpa,
+            stage.window_peak_kpa,
             if stage.consolidated { "" } else { " (not consolidated)" }
         );
     }

@@ -313,20 +313,23 @@ impl ShearRun {
     }
 
     /// Every stage's record as CSV: `normal_stress_kpa,displacement_mm,shear_stress_kpa,
-    /// lid_stress_kpa,lid_z_mm`.
+    /// lid_stress_kpa,lid_z_mm,window_shear_kpa,window_normal_kpa`.
     pub fn curves_csv(&self) -> String {
         let mut s = String::from(
-            "normal_stress_kpa,displacement_mm,shear_stress_kpa,lid_stress_kpa,lid_z_mm\n",
+            "normal_stress_kpa,displacement_mm,shear_stress_kpa,lid_stress_kpa,lid_z_mm,\
+             window_shear_kpa,window_normal_kpa\n",
         );
         for stage in &self.result.stages {
             for p in &stage.series {
                 s.push_str(&format!(
-                    "{},{},{},{},{}\n",
+                    "{},{},{},{},{},{},{}\n",
                     stage.normal_stress_kpa,
                     p.displacement_mm,
                     p.shear_stress_kpa,
                     p.lid_stress_kpa,
-                    p.lid_z_mm
+                    p.lid_z_mm,
+                    p.window_shear_kpa,
+                    p.window_normal_kpa
                 ));
             }
         }
