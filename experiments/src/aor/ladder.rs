@@ -116,10 +116,15 @@ pub fn ladder_svg(points: &[LadderPoint], reference_deg: f64, band_deg: f64) -> 
             s,
             "<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"5\" fill=\"{fill}\" stroke=\"#1f5fa8\" stroke-width=\"1.5\"/>"
         );
+        // Labels of points in the right third read leftward, so they stay on the page.
+        let (lx, anchor) = if x > left + 0.66 * (right - left) {
+            (x - 8.0, "end")
+        } else {
+            (x + 8.0, "start")
+        };
         let _ = writeln!(
             s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" fill=\"#333\">{} ({:.1}°)</text>",
-            x + 8.0,
+            "<text x=\"{lx:.1}\" y=\"{:.1}\" text-anchor=\"{anchor}\" fill=\"#333\">{} ({:.1}°)</text>",
             y - 8.0,
             escape(&p.label),
             p.angle_deg
