@@ -109,14 +109,16 @@ pub fn ladder_svg(points: &[LadderPoint], reference_deg: f64, band_deg: f64) -> 
             path.join(" ")
         );
     }
-    for p in &order {
+    for (k, p) in order.iter().enumerate() {
         let (x, y) = (frame.x(p.height_grains), frame.y(p.angle_deg));
         let fill = if p.came_to_rest { "#1f5fa8" } else { "white" };
         let _ = writeln!(
             s,
             "<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"5\" fill=\"{fill}\" stroke=\"#1f5fa8\" stroke-width=\"1.5\"/>"
         );
-        // Labels of points in the right third read leftward, so they stay on the page.
+        // Labels of points in the right third read leftward, so they stay on the page; they
+        // sit above and below their points in turn, so neighbours do not overwrite each other.
+        let ly = if k % 2 == 0 { y - 8.0 } else { y + 18.0 };
         let (lx, anchor) = if x > left + 0.66 * (right - left) {
             (x - 8.0, "end")
         } else {
@@ -124,8 +126,7 @@ pub fn ladder_svg(points: &[LadderPoint], reference_deg: f64, band_deg: f64) -> 
         };
         let _ = writeln!(
             s,
-            "<text x=\"{lx:.1}\" y=\"{:.1}\" text-anchor=\"{anchor}\" fill=\"#333\">{} ({:.1}°)</text>",
-            y - 8.0,
+            "<text x=\"{lx:.1}\" y=\"{ly:.1}\" text-anchor=\"{anchor}\" fill=\"#333\">{} ({:.1}°)</text>",
             escape(&p.label),
             p.angle_deg
         );
