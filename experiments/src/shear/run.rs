@@ -434,28 +434,24 @@ fn shear(
         particles: bed.positions.len(),
     });
 
-    let fit = |value: fn(&ShearStage) -> f64| {
+    // A Mohr-Coulomb line through each stage's (σ, τ), kPa.
+    let fit = |point: fn(&ShearStage) -> (f64, f64)| {
         let points: Vec<StrengthPoint> = stages
             .iter()
-            .map(|st| StrengthPoint {
-                normal_stress_pa: 1e3 * st.plane_normal_stress_kpa,
-                shear_stress_pa: 1e3 * value(st),
+            .map(|st| {
+                let (sigma, tau) = point(st);
+                StrengthPoint {
+                    normal_stress_pa: 1e3 * sigma,
+                    shear_stress_pa: 1e3 * tau,
+                }
             })
             .collect();
         mohr_coulomb_fit(&points)
     };
-    let box_peak = fit(|st| st.peak_kpa).ok();
-    let residual = fit(|st| st.residual_kpa).ok();
+    let box_peak = fit(|st| (st.plane_normal_stress_kpa, st.peak_kpa)).ok();
+    let residual = fit(|st| (st.plane_normal_stress_kpa, st.residual_kpa)).ok();
     // The soil's strength: the window's stresses (see `window`), not the box's forces.
-    let peak = mohr_coulomb_fit(
-        &stages
-            .iter()
-            .map(|st| StrengthPoint {
-                normal_stress_pa: 1e3 * st.window_normal_stress_kpa,
-                shear_stress_pa: 1e3 * st.window_peak_kpa,
-            })
-            .collect::<Vec<_>>(),
-    );
+    let peak = fit(|st| (st.window_normal_stress_kpa, st.window_peak_kpa));
     let (status, message) = match &peak {
         Err(e) => (ShearStatus::MeasurementFailed, Some(e.to_string())),
         Ok(_) if !bed.settled => (
