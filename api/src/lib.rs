@@ -86,11 +86,28 @@ pub struct FactorSpec {
     /// Factor name used in the design, the model terms and the reports.
     pub name: String,
     /// Dotted path into the experiment spec, e.g. `material.friction` or `particles.0.radius`.
-    pub path: String,
+    /// Absent: a column of the design that is not written into the spec (a campaign's factor
+    /// that acts on another of its experiments keeps the batches' design rows aligned).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub path: Option<String>,
     /// Natural value at coded -1.
     pub low: f64,
     /// Natural value at coded +1.
     pub high: f64,
+}
+
+impl FactorSpec {
+    /// The `(path, value)` pairs a run writes into its spec: each factor with a path, with its
+    /// natural value (factors and values in factor order).
+    pub fn assignments<'a>(
+        factors: &'a [FactorSpec],
+        natural: &'a [f64],
+    ) -> impl Iterator<Item = (&'a str, f64)> + 'a {
+        factors
+            .iter()
+            .zip(natural)
+            .filter_map(|(f, &v)| Some((f.path.as_deref()?, v)))
+    }
 }
 
 /// How to choose the design points.

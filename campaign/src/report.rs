@@ -42,7 +42,7 @@ fn spec_hash(batch: &BatchRequest, run: &RunView) -> String {
             run.factors
                 .iter()
                 .find(|v| v.name == f.name)
-                .map(|v| (f.path.as_str(), v.natural))
+                .and_then(|v| Some((f.path.as_deref()?, v.natural)))
         })
         .collect();
     let doc = json!({

@@ -146,12 +146,25 @@ pub struct CandidateFactor {
     /// middle of `[low, high]`). The paper holds N6 at 0.50.
     #[serde(default)]
     pub fixed_at: Option<f64>,
+    /// The experiments (keys of `experiments`) whose spec this factor is written into; absent:
+    /// all of them. The others still run the same design rows, the factor's column unwritten
+    /// (e.g. a cohesion energy for the shear test only, the angle of repose poured dry as the
+    /// paper's was). The drilling validation writes every factor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub experiments: Option<Vec<String>>,
 }
 
 impl CandidateFactor {
     /// The value used when the factor is not varied.
     pub fn hold_value(&self) -> f64 {
         self.fixed_at.unwrap_or(0.5 * (self.low + self.high))
+    }
+
+    /// Whether the factor is written into experiment `key`'s spec.
+    pub fn acts_on(&self, key: &str) -> bool {
+        self.experiments
+            .as_ref()
+            .is_none_or(|keys| keys.iter().any(|k| k == key))
     }
 }
 
@@ -495,6 +508,34 @@ impl CampaignRequest {
                     return Err(bad(
                         &format!("factors[{i}].fixed_at"),
                         "must be a finite number".into(),
+                    ));
+                }
+            }
+            if let Some(keys) = &f.experiments {
+                let field = format!("factors[{i}].experiments");
+                if self.experiments.is_empty() {
+                    return Err(bad(
+                        &field,
+                        "only a campaign with several `experiments` can scope a factor".into(),
+                    ));
+                }
+                if keys.is_empty() {
+                    return Err(bad(
+                        &field,
+                        "must name at least one experiment (leave it out for all)".into(),
+                    ));
+                }
+                if let Some(k) = keys.iter().find(|k| !self.experiments.contains_key(*k)) {
+                    return Err(bad(
+                        &field,
+                        format!(
+                            "`{k}` is not one of the campaign's experiments ({})",
+                            self.experiments
+                                .keys()
+                                .map(String::as_str)
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
                     ));
                 }
             }

@@ -17,7 +17,7 @@ mod common;
 use std::collections::BTreeMap;
 
 use common::{expand, run_lookup};
-use repose_api::{apply_factor_values, BatchRequest};
+use repose_api::{apply_factor_values, BatchRequest, FactorSpec};
 use repose_campaign::{Campaign, CampaignRequest, Next, StageKind, StageResult, Status};
 use serde_json::{json, Value};
 
@@ -86,11 +86,7 @@ fn add_rows(batch: &mut BatchRequest) {
     for (_, replicate, _, _, natural) in expand(batch) {
         let spec = apply_factor_values(
             &batch.experiment.spec,
-            batch
-                .factors
-                .iter()
-                .zip(&natural)
-                .map(|(f, v)| (f.path.as_str(), *v)),
+            FactorSpec::assignments(&batch.factors, &natural),
         )
         .unwrap();
         let x: Vec<f64> = FACTORS
@@ -371,6 +367,10 @@ fn every_example_campaign_file_is_a_valid_request() {
                 ]
             );
             assert_eq!(request.experiment_keys(), ["aor", "shear"]);
+            // The heap is poured dry, as the paper's was: the cohesion acts on the shear test
+            // (and the drilling validation) only.
+            let n7 = request.factors.iter().find(|f| f.name == "N7").unwrap();
+            assert!(n7.acts_on("shear") && !n7.acts_on("aor"));
             let v = request.drilling.as_ref().unwrap();
             assert_eq!(v.experiment.kind, "drill");
             assert_eq!(v.measured["opening_diameter_mm"], 63.20);
@@ -454,4 +454,89 @@ fn targets_that_cannot_hold_together_end_in_needs_attention_naming_the_response(
     );
     assert_eq!(campaign.verifications.len(), 2);
     assert!(campaign.verifications.iter().all(|v| !v.within_tolerance));
+}
+
+#[test]
+fn a_factor_scoped_to_one_experiment_is_written_only_into_its_spec() {
+    // A acts on the angle only and C (which moves nothing) on the shear test only: the other
+    // experiment's batches keep the column in their design but never write it.
+    let (campaign, _, next) = drive(request(json!({
+        "factors": [
+            {"name": "A", "path": "values.A", "low": 0.0, "high": 1.0, "experiments": ["aor"]},
+            {"name": "B", "path": "values.B", "low": 0.0, "high": 1.0},
+            {"name": "C", "path": "values.C", "low": 0.0, "high": 1.0, "experiments": ["shear"]}
+        ],
+        // Two factors go on, so C is held after screening whatever its noise-level t.
+        "screening": {"design": {"type": "plackett_burman", "runs": 8}, "max_factors": 2},
+    })));
+    let Next::Finished(summary) = next else {
+        panic!("not finished: {next:?}");
+    };
+    assert!(summary.within_tolerance);
+    let value = |name: &str| {
+        summary
+            .parameters
+            .iter()
+            .find(|p| p.name == name)
+            .unwrap()
+            .value
+    };
+    assert!((value("A") - 0.25).abs() < 0.02, "A = {}", value("A"));
+    assert!((value("B") - 0.5).abs() < 0.02, "B = {}", value("B"));
+    let path_of = |b: &repose_campaign::IssuedBatch, name: &str| {
+        b.request
+            .factors
+            .iter()
+            .find(|f| f.name == name)
+            .map(|f| f.path.clone())
+    };
+    let mut checked = 0;
+    for b in &campaign.batches {
+        match b.experiment.as_str() {
+            "aor" => {
+                assert_eq!(path_of(b, "A"), Some(Some("values.A".into())));
+                assert!(matches!(path_of(b, "C"), None | Some(None)));
+            }
+            "shear" => {
+                assert!(matches!(path_of(b, "A"), None | Some(None)));
+                assert_eq!(path_of(b, "B"), Some(Some("values.B".into())));
+            }
+            other => panic!("unexpected experiment {other:?}"),
+        }
+        checked += 1;
+        // After screening C is held: written at its hold value into the shear spec only.
+        if b.stage == StageKind::Verification {
+            let held = b.request.experiment.spec["values"]["C"].as_f64().unwrap();
+            let expected = if b.experiment == "shear" { 0.5 } else { 0.0 };
+            assert_eq!(held, expected, "{}", b.experiment);
+        }
+    }
+    assert!(checked >= 6, "{checked} batches");
+    let held = &campaign.screening.as_ref().unwrap().held;
+    assert_eq!(held.len(), 1);
+    assert_eq!(held[0].name, "C");
+    let screening = &campaign.batches[0];
+    assert_eq!(screening.request.factors.len(), 3);
+    assert_eq!(
+        campaign.batches[1].request.design, screening.request.design,
+        "the experiments share the design rows"
+    );
+}
+
+#[test]
+fn a_factor_scope_names_existing_experiments() {
+    let err = |scope: Value| {
+        let factors = json!([
+            {"name": "A", "path": "values.A", "low": 0.0, "high": 1.0, "experiments": scope},
+            {"name": "B", "path": "values.B", "low": 0.0, "high": 1.0}
+        ]);
+        Campaign::start(request(json!({ "factors": factors })))
+            .unwrap_err()
+            .to_string()
+    };
+    let e = err(json!(["drill"]));
+    assert!(e.starts_with("factors[0].experiments"), "{e}");
+    assert!(e.contains("`drill`"), "{e}");
+    let e = err(json!([]));
+    assert!(e.starts_with("factors[0].experiments"), "{e}");
 }

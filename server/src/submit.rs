@@ -3,7 +3,9 @@
 //! Everything that can be wrong with a submission is detected here, before anything is
 //! written, and reported as a 422 naming the request field to fix.
 
-use repose_api::{apply_factor_values, BatchRequest, CcdVariantName, DesignRequest, ModelName};
+use repose_api::{
+    apply_factor_values, BatchRequest, CcdVariantName, DesignRequest, FactorSpec, ModelName,
+};
 use repose_doe::design::{
     box_behnken, central_composite, default_box_behnken_centre_points, full_factorial,
     plackett_burman, replicate, smallest_plackett_burman_runs, splitmix64, CcdVariant, Design,
@@ -180,7 +182,9 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     }
     for (i, factor) in request.factors.iter().enumerate() {
         check_name_length(&format!("factors[{i}].name"), &factor.name)?;
-        check_name_length(&format!("factors[{i}].path"), &factor.path)?;
+        if let Some(path) = &factor.path {
+            check_name_length(&format!("factors[{i}].path"), path)?;
+        }
     }
     // Before the design is built: `centre_points: 1e12` must not allocate terabytes.
     check_design_size(&request)?;
@@ -236,11 +240,7 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
             }
             let spec = apply_factor_values(
                 &template,
-                request
-                    .factors
-                    .iter()
-                    .zip(&natural)
-                    .map(|(factor, &value)| (factor.path.as_str(), value)),
+                FactorSpec::assignments(&request.factors, &natural),
             )
             .map_err(|err| AppError::invalid("factors", err.to_string()))?;
             check_run_spec(&request, &spec, &natural)?;
@@ -297,7 +297,10 @@ fn check_run_spec(request: &BatchRequest, spec: &Value, natural: &[f64]) -> Resu
     let blamed = match &err {
         ExperimentError::InvalidSpec {
             path: Some(path), ..
-        } => request.factors.iter().position(|f| &f.path == path),
+        } => request
+            .factors
+            .iter()
+            .position(|f| f.path.as_ref() == Some(path)),
         _ => None,
     };
     Err(match blamed {
@@ -336,11 +339,16 @@ fn validate_factors(request: &BatchRequest, template: &Value) -> Result<Vec<Fact
                 format!("factor name `{}` is used twice", spec.name),
             ));
         }
-        if request.factors[..i].iter().any(|f| f.path == spec.path) {
-            return Err(AppError::invalid(
-                format!("factors[{i}].path"),
-                format!("path `{}` is already varied by another factor", spec.path),
-            ));
+        if let Some(path) = &spec.path {
+            if request.factors[..i]
+                .iter()
+                .any(|f| f.path.as_ref() == Some(path))
+            {
+                return Err(AppError::invalid(
+                    format!("factors[{i}].path"),
+                    format!("path `{path}` is already varied by another factor"),
+                ));
+            }
         }
         for (field, value) in [("low", spec.low), ("high", spec.high)] {
             if !value.is_finite() {
@@ -359,8 +367,10 @@ fn validate_factors(request: &BatchRequest, template: &Value) -> Result<Vec<Fact
                 ),
             ));
         }
-        apply_factor_values(template, [(spec.path.as_str(), spec.low)])
-            .map_err(|err| AppError::invalid(format!("factors[{i}].path"), err.to_string()))?;
+        if let Some(path) = &spec.path {
+            apply_factor_values(template, [(path.as_str(), spec.low)])
+                .map_err(|err| AppError::invalid(format!("factors[{i}].path"), err.to_string()))?;
+        }
         let factor = Factor::new(spec.name.clone(), spec.low, spec.high)
             .map_err(|err| AppError::invalid(format!("factors[{i}]"), err.to_string()))?;
         factors.push(factor);
@@ -492,6 +502,32 @@ mod tests {
             "seed": 11
         }))
         .unwrap()
+    }
+
+    #[test]
+    fn a_factor_without_a_path_is_a_design_column_only() {
+        let mut req = request(json!({"type": "factorial"}), "linear");
+        req.factors[1].path = None;
+        let plan = plan_batch(req.clone(), 0).unwrap();
+        assert_eq!(plan.runs.len(), 8);
+        let levels: std::collections::BTreeSet<u64> =
+            plan.runs.iter().map(|r| r.natural[1].to_bits()).collect();
+        assert_eq!(levels.len(), 2, "the column still takes both levels");
+        for run in &plan.runs {
+            let spec = apply_factor_values(
+                &plan.template,
+                FactorSpec::assignments(&req.factors, &run.natural),
+            )
+            .unwrap();
+            assert_eq!(spec["soil_soil"]["static_friction"], json!(run.natural[0]));
+            assert_eq!(
+                spec["soil_soil"]["restitution"],
+                plan.template["soil_soil"]["restitution"]
+            );
+        }
+        // Two path-less factors are not "the same path".
+        req.factors[0].path = None;
+        assert!(plan_batch(req, 0).is_ok());
     }
 
     #[test]

@@ -90,7 +90,7 @@ impl Campaign {
             .iter()
             .map(|f| FactorSpec {
                 name: f.name.clone(),
-                path: path_of(&f.name),
+                path: Some(path_of(&f.name)),
                 low: f.low,
                 high: f.high,
             })

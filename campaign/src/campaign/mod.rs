@@ -444,6 +444,22 @@ impl Campaign {
     ) -> BatchRequest {
         let index = self.batches.len();
         let r = &self.request;
+        // A factor that does not act on this experiment stays a column of its design (the
+        // experiments' batches share their rows) but is not written into its spec.
+        let factors = if stage == StageKind::Drilling {
+            factors
+        } else {
+            factors
+                .into_iter()
+                .map(|mut f| {
+                    let candidate = r.factors.iter().find(|c| c.name == f.name);
+                    f.path = candidate
+                        .filter(|c| c.acts_on(&key))
+                        .map(|c| c.path.clone());
+                    f
+                })
+                .collect()
+        };
         let mut name = match stage {
             StageKind::ResponseSurface | StageKind::Verification if self.round > 0 => {
                 format!("{}: {} (round {})", r.name, stage.label(), self.round + 1)
@@ -538,13 +554,15 @@ impl Campaign {
         let mut template = r.template_for(which, key);
         if let Some(s) = &self.screening {
             for h in &s.held {
-                let path = &r
+                let candidate = r
                     .factors
                     .iter()
                     .find(|f| f.name == h.name)
-                    .expect("held factors are candidates")
-                    .path;
-                set_path(&mut template.spec, path, h.value).map_err(|reason| {
+                    .expect("held factors are candidates");
+                if !candidate.acts_on(key) {
+                    continue;
+                }
+                set_path(&mut template.spec, &candidate.path, h.value).map_err(|reason| {
                     CampaignError::InvalidRequest {
                         field: format!("factors.{}.path", h.name),
                         reason,
@@ -565,8 +583,7 @@ impl Campaign {
                     .factors
                     .iter()
                     .find(|c| c.name == f.name)
-                    .map(|c| c.path.clone())
-                    .unwrap_or_default(),
+                    .map(|c| c.path.clone()),
                 low: f.low,
                 high: f.high,
             })

@@ -203,7 +203,7 @@ impl Campaign {
             .iter()
             .map(|f| FactorSpec {
                 name: f.name.clone(),
-                path: f.path.clone(),
+                path: Some(f.path.clone()),
                 low: f.low,
                 high: f.high,
             })

@@ -6,8 +6,8 @@
 use std::collections::BTreeMap;
 
 use repose_api::{
-    apply_factor_values, BatchRequest, CcdVariantName, DesignRequest, FactorValue, RunState,
-    RunView,
+    apply_factor_values, BatchRequest, CcdVariantName, DesignRequest, FactorSpec, FactorValue,
+    RunState, RunView,
 };
 use repose_campaign::StageResult;
 use repose_doe::design::{
@@ -181,11 +181,7 @@ pub fn run_batch_with(
         .map(|(i, (row, rep, seed, coded, natural))| {
             let spec = apply_factor_values(
                 &batch.experiment.spec,
-                batch
-                    .factors
-                    .iter()
-                    .zip(&natural)
-                    .map(|(f, v)| (f.path.as_str(), *v)),
+                FactorSpec::assignments(&batch.factors, &natural),
             )
             .expect("factor paths exist");
             let result = simulate(&spec, seed);

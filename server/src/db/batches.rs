@@ -88,8 +88,8 @@ impl Db {
             template
                 .paths
                 .iter()
-                .map(String::as_str)
-                .zip(natural.iter().copied()),
+                .zip(natural.iter().copied())
+                .filter_map(|(p, v)| Some((p.as_deref()?, v))),
         )
         .map_err(|err| DbError::Corrupt(format!("stored run spec of batch {batch_id}: {err}")))
     }

@@ -83,8 +83,8 @@ const TEMPLATE_CACHE: usize = 64;
 struct RunTemplate {
     /// The experiment spec without factor values.
     template: Value,
-    /// The factors' spec paths, in factor order.
-    paths: Vec<String>,
+    /// The factors' spec paths, in factor order (`None`: a design column not written).
+    paths: Vec<Option<String>>,
 }
 
 /// A worker's `last_seen_at` is rewritten by claims at most this often.
