@@ -9,8 +9,6 @@
 //! rebuild the histories are carried over by matching the pair's particles through their index
 //! at the previous build.
 
-use std::sync::atomic::{AtomicU64, Ordering};
-
 use rayon::prelude::*;
 
 use crate::math::Vec3;
@@ -128,59 +126,6 @@ pub(crate) struct PartnerShare {
     pub rolling_moment: f64,
 }
 
-/// One pair's [`PartnerShare`] in a slot that any thread may store to and load from: seven
-/// `f64`s as bits in relaxed atomics (plain moves on x86-64; no `unsafe`). Relaxed is enough
-/// and the results stay deterministic because every slot has exactly one writer per force
-/// evaluation (the chunk that owns the pair's lower particle) and is read only after the
-/// writes: after the parallel contact pass has joined, or, in the fused sweep, later in the
-/// same thread.
-#[derive(Debug, Default)]
-pub(crate) struct ShareSlot([AtomicU64; 7]);
-
-impl ShareSlot {
-    #[inline(always)]
-    pub(crate) fn store(&self, s: PartnerShare) {
-        let values = [
-            s.force.x,
-            s.force.y,
-            s.force.z,
-            s.torque.x,
-            s.torque.y,
-            s.torque.z,
-            s.rolling_moment,
-        ];
-        for (cell, v) in self.0.iter().zip(values) {
-            cell.store(v.to_bits(), Ordering::Relaxed);
-        }
-    }
-
-    #[inline(always)]
-    pub(crate) fn load(&self) -> PartnerShare {
-        let v = |k: usize| f64::from_bits(self.0[k].load(Ordering::Relaxed));
-        PartnerShare {
-            force: Vec3::new(v(0), v(1), v(2)),
-            torque: Vec3::new(v(3), v(4), v(5)),
-            rolling_moment: v(6),
-        }
-    }
-
-    /// Zero (a pair not in contact contributes nothing).
-    #[inline(always)]
-    pub(crate) fn clear(&self) {
-        for cell in &self.0 {
-            cell.store(0, Ordering::Relaxed);
-        }
-    }
-}
-
-impl Clone for ShareSlot {
-    fn clone(&self) -> Self {
-        let slot = ShareSlot::default();
-        slot.store(self.load());
-        slot
-    }
-}
-
 /// The half pair list with per-pair contact history.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct PairList {
@@ -193,18 +138,13 @@ pub(crate) struct PairList {
     pub tangential: Vec<Vec3>,
     /// EPSD rolling spring torque on i (empty unless EPSD is used).
     pub rolling: Vec<Vec3>,
-    /// Contributions to the higher-index particle, stored in *incidence order*: the shares
-    /// particle j receives are `partner_share[incidence_start[j]..incidence_start[j + 1]]`, in
-    /// ascending pair order, so j's gather reads one contiguous run. The contact loop writes a
-    /// pair's share at its slot ([`PairList::share_slot`]); a pair not in contact holds zeros
-    /// (zeroed at the build and when the pair separates), so the gather sums its run without
-    /// looking at the pairs' flags.
-    pub partner_share: Vec<ShareSlot>,
+    /// Contributions to the higher-index particle, written by the contact loop for the pairs
+    /// in contact (see [`IN_CONTACT`]).
+    pub partner_share: Vec<PartnerShare>,
     /// CSR offsets, length n + 1: the pairs in which particle k is the higher index j.
     pub incidence_start: Vec<u32>,
-    /// For each pair (in pair order), its slot in [`PairList::partner_share`]. Every slot
-    /// belongs to exactly one pair, so chunks that own disjoint pairs write disjoint slots.
-    pub share_slot: Vec<u32>,
+    /// Pair indices (ascending) for the incidence CSR.
+    pub incidence_pair: Vec<u32>,
 }
 
 impl PairList {
@@ -217,9 +157,9 @@ impl PairList {
             + self.partner.len() * 4
             + self.tangential.len() * std::mem::size_of::<Vec3>()
             + self.rolling.len() * std::mem::size_of::<Vec3>()
-            + self.partner_share.len() * std::mem::size_of::<ShareSlot>()
+            + self.partner_share.len() * std::mem::size_of::<PartnerShare>()
             + self.incidence_start.len() * 4
-            + self.share_slot.len() * 4
+            + self.incidence_pair.len() * 4
     }
 
     /// Find the history of the pair (old index a, old index b) in this (previous) list.
@@ -562,9 +502,9 @@ pub(crate) fn build_pair_list(
         partner: Vec::with_capacity(total),
         tangential: Vec::with_capacity(total),
         rolling: Vec::with_capacity(if with_rolling_history { total } else { 0 }),
-        partner_share: (0..total).map(|_| ShareSlot::default()).collect(),
+        partner_share: vec![PartnerShare::default(); total],
         incidence_start: vec![0; n + 1],
-        share_slot: vec![0; total],
+        incidence_pair: vec![0; total],
     };
     list.first_pair.push(0);
     let mut offset = 0u32;
@@ -577,8 +517,7 @@ pub(crate) fn build_pair_list(
         list.tangential.extend_from_slice(&chunk.tangential);
         list.rolling.extend_from_slice(&chunk.rolling);
     }
-    // Incidence CSR (pairs where k is the higher index), pair indices ascending: each pair's
-    // slot among its higher particle's shares.
+    // Incidence CSR (pairs where k is the higher index), pair indices ascending.
     for &j in &list.partner {
         list.incidence_start[(j & PARTNER_INDEX) as usize + 1] += 1;
     }
@@ -586,10 +525,10 @@ pub(crate) fn build_pair_list(
         list.incidence_start[k + 1] += list.incidence_start[k];
     }
     let mut fill = list.incidence_start.clone();
-    for (slot, &j) in list.share_slot.iter_mut().zip(&list.partner) {
-        let j = (j & PARTNER_INDEX) as usize;
-        *slot = fill[j];
-        fill[j] += 1;
+    for (p, &j) in list.partner.iter().enumerate() {
+        let j = j & PARTNER_INDEX;
+        list.incidence_pair[fill[j as usize] as usize] = p as u32;
+        fill[j as usize] += 1;
     }
     list
 }

@@ -82,9 +82,7 @@ pub(super) struct ChunkOut<'a> {
     pub(super) partner: &'a mut [u32],
     pub(super) tangential: &'a mut [Vec3],
     pub(super) rolling: &'a mut [Vec3],
-    /// The chunk's pairs' share slots, and where the shares go.
-    pub(super) slot: &'a [u32],
-    pub(super) shares: &'a [ShareSlot],
+    pub(super) share: &'a mut [PartnerShare],
     pub(super) walls: &'a mut [Vec<WallHistory>],
     pub(super) force: &'a mut [Vec3],
     pub(super) torque: &'a mut [Vec3],
@@ -114,8 +112,7 @@ pub(super) fn chunk_contacts(
             first_pair,
             c.partner,
             c.tangential,
-            c.slot,
-            c.shares,
+            c.share,
             &mut scratch.pairs,
         );
     }
@@ -148,8 +145,7 @@ pub(super) fn chunk_contacts(
                 &mut c.partner[range.clone()],
                 &mut c.tangential[range.clone()],
                 rolling,
-                &c.slot[range],
-                c.shares,
+                &mut c.share[range],
             )
         };
         let (f, tq, moment) = geometry_contacts(ctx, r, i, sums, &mut c.walls[k], scratch, loads);
@@ -304,10 +300,8 @@ fn geometry_contacts(
 }
 
 /// Particle i's own pairs, one at a time (every law): returns i's force (with gravity),
-/// torque and CDT rolling moment from them, writes each touching pair's share for j (and
-/// zeros for a pair that separated).
+/// torque and CDT rolling moment from them, writes each touching pair's share for j.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn pairs_scalar(
     ctx: &ContactContext,
     r: &ParticleReads,
@@ -315,10 +309,8 @@ fn pairs_scalar(
     partner: &mut [u32],
     tangential: &mut [Vec3],
     rolling: &mut [Vec3],
-    slot: &[u32],
-    shares: &[ShareSlot],
+    share: &mut [PartnerShare],
 ) -> (Vec3, Vec3, f64) {
-    let slot = &slot[..partner.len()];
     let dt = ctx.dt;
     let domain = &ctx.domain;
     let materials = ctx.materials;
@@ -370,22 +362,21 @@ fn pairs_scalar(
                     if use_rolling_spring {
                         rolling[local] = Vec3::zeros();
                     }
-                    shares[slot[local] as usize].store(PartnerShare {
+                    share[local] = PartnerShare {
                         force: -force,
                         torque: Vec3::zeros(),
                         rolling_moment: 0.0,
-                    });
+                    };
                     continue;
                 }
             }
-            // Not touching: histories and share are reset (only if set).
+            // Not touching: histories are reset (only if set), the share is left stale.
             if *entry & IN_CONTACT != 0 {
                 *entry &= !IN_CONTACT;
                 tangential[local] = Vec3::zeros();
                 if use_rolling_spring {
                     rolling[local] = Vec3::zeros();
                 }
-                shares[slot[local] as usize].clear();
             }
             continue;
         }
@@ -453,18 +444,18 @@ fn pairs_scalar(
                 torque_j -= mr;
             }
         }
-        shares[slot[local] as usize].store(PartnerShare {
+        share[local] = PartnerShare {
             force: -contact.force,
             torque: torque_j,
             rolling_moment: moment_j,
-        });
+        };
     }
 
     (f, tq, moment)
 }
 
-/// Particle i adds the shares of the pairs it is the higher index of (`shares`, its run of
-/// [`PairList::partner_share`] in pair order; zeros for pairs not in contact) to its own
+/// Particle i adds the shares of the pairs in contact it is the higher index of (`incident`,
+/// flagged in `partner`) to its own
 /// force, torque and CDT moment, applies CDT rolling friction, then integrates. Returns
 /// whether it moved far enough (or out of the domain) to need a rebuild.
 #[inline(always)]
@@ -474,7 +465,9 @@ pub(super) fn gather_particle(
     mut force: Vec3,
     mut torque: Vec3,
     mut rolling: f64,
-    shares: &[ShareSlot],
+    incident: &[u32],
+    partner: &[u32],
+    shares: &[PartnerShare],
     mass: f64,
     inv_i: f64,
     mark: BuildMark,
@@ -482,8 +475,11 @@ pub(super) fn gather_particle(
 ) -> bool {
     let dt = g.dt;
     let domain = &g.domain;
-    for share in shares {
-        let share = share.load();
+    for &pair in incident {
+        if partner[pair as usize] & IN_CONTACT == 0 {
+            continue;
+        }
+        let share = &shares[pair as usize];
         force += share.force;
         torque += share.torque;
         rolling += share.rolling_moment;

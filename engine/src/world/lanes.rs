@@ -131,15 +131,14 @@ pub(super) fn chunk_pairs(
     first_pair: &[u32],
     partner: &mut [u32],
     tangential: &mut [Vec3],
-    slot: &[u32],
-    shares: &[ShareSlot],
+    share: &mut [PartnerShare],
     out: &mut ChunkPairs,
 ) {
     let n = r.position.len();
     let (position, radius) = (&r.position[..n], &r.radius[..n]);
     let pair_count = partner.len();
     let tangential = &mut tangential[..pair_count];
-    let slot = &slot[..pair_count];
+    let share = &mut share[..pair_count];
     out.reserve(particles.len(), pair_count);
     let base = first_pair[particles.start] as usize;
 
@@ -180,9 +179,9 @@ pub(super) fn chunk_pairs(
                 count += touching as usize;
                 let was = entry & IN_CONTACT != 0;
                 if was & !touching {
-                    // Separated since the last step: the history and the share are reset.
+                    // Separated since the last step: the history is reset, the share left
+                    // stale.
                     tangential[local] = Vec3::zeros();
-                    shares[slot[local] as usize].clear();
                 }
                 partner[local] = (entry & !IN_CONTACT) | ((touching as u32) * IN_CONTACT);
             }
@@ -216,11 +215,11 @@ pub(super) fn chunk_pairs(
             out.tz[t] = o.ti_z[l];
             out.moment[t] = o.moment_i[l];
             tangential[local[l]] = Vec3::new(o.spring_x[l], o.spring_y[l], o.spring_z[l]);
-            shares[slot[local[l]] as usize].store(PartnerShare {
+            share[local[l]] = PartnerShare {
                 force: -Vec3::new(o.fx[l], o.fy[l], o.fz[l]),
                 torque: Vec3::new(o.tj_x[l], o.tj_y[l], o.tj_z[l]),
                 rolling_moment: o.moment_j[l],
-            });
+            };
         }
         g += LANES;
     }

@@ -20,9 +20,8 @@
 //! - **Fixed gather order.** Every floating-point sum runs in an order fixed by the data (pair
 //!   order, incidence order, chunk order), never by thread scheduling. The contact pass runs
 //!   over particles, each computing the pairs it owns (i < j) and its geometry contacts; the
-//!   pair's share for j is written to the pair's own slot in j's run of shares (the incidence
-//!   CSR, ascending pair order) and j sums its run. Each slot has one writer; no atomics, no
-//!   locks.
+//!   pair's share for j is stored with the pair and gathered by j, in ascending pair order, via
+//!   a CSR incidence list. No atomics, no locks.
 //! - **Determinism.** Every parallel loop works on fixed chunks of [`CHUNK`] particles, so
 //!   results are bit-identical for any thread count, and the fused and parallel dispatch
 //!   paths call the same kernel functions with the same arguments (tested).
@@ -55,8 +54,8 @@ use crate::material::{
 use crate::math::{Pose, Vec3};
 use crate::mesh::{MeshContact, TriMesh};
 use crate::neighbor::{
-    build_pair_list, CellGrid, Domain, PairList, PartnerShare, ShareSlot, CHUNK, IN_CONTACT,
-    PARTNER_INDEX, WRAPS,
+    build_pair_list, CellGrid, Domain, PairList, PartnerShare, CHUNK, IN_CONTACT, PARTNER_INDEX,
+    WRAPS,
 };
 use crate::particles::{single, BuildMark, ParticleSpec, Particles, WallHistory};
 
@@ -545,7 +544,7 @@ impl World {
                 visit(ContactForce {
                     i,
                     j,
-                    force_on_j: pl.partner_share[pl.share_slot[k] as usize].load().force,
+                    force_on_j: pl.partner_share[k].force,
                     branch: d.minimum_image(p.position[j] - p.position[i]),
                 });
             }

@@ -90,8 +90,7 @@ impl World {
                         partner: &mut pl.partner[own.clone()],
                         tangential: &mut pl.tangential[own.clone()],
                         rolling,
-                        slot: &pl.share_slot[own],
-                        shares: &pl.partner_share,
+                        share: &mut pl.partner_share[own],
                         walls: &mut p.wall_history[chunk_start..chunk_end],
                         force: &mut force[..size],
                         torque: &mut torque[..size],
@@ -104,9 +103,6 @@ impl World {
             for i in chunk_start..chunk_end {
                 let k = i - chunk_start;
                 let incident = pl.incidence_start[i] as usize..pl.incidence_start[i + 1] as usize;
-                // i's shares come from pairs (k, i), k < i: all written by this chunk or
-                // earlier ones of this sweep.
-                let incident = &pl.partner_share[incident];
                 let state = ParticleState {
                     force: &mut p.force[i],
                     torque: &mut p.torque[i],
@@ -119,7 +115,9 @@ impl World {
                     force[k],
                     torque[k],
                     moment[k],
-                    incident,
+                    &pl.incidence_pair[incident],
+                    &pl.partner,
+                    &pl.partner_share,
                     p.mass[i],
                     p.inverse_inertia[i],
                     p.build_mark[i],
@@ -146,25 +144,15 @@ impl World {
         let ctx = self.contact_context(spring_dt, placed);
         let n = particles.len();
         let p = &mut particles;
+        let first_pair = &pairs.first_pair;
         let use_rolling_spring = !pairs.rolling.is_empty();
-        let PairList {
-            first_pair,
-            partner,
-            tangential,
-            rolling,
-            partner_share,
-            share_slot,
-            ..
-        } = &mut pairs;
-        let first_pair = &*first_pair;
-        let shares = &*partner_share;
 
         // Split the per-pair and per-particle output arrays into per-chunk slices.
         struct Task<'a> {
             start: usize,
             tangential: &'a mut [Vec3],
             rolling: &'a mut [Vec3],
-            slot: &'a [u32],
+            share: &'a mut [PartnerShare],
             partner: &'a mut [u32],
             force: &'a mut [Vec3],
             torque: &'a mut [Vec3],
@@ -173,10 +161,10 @@ impl World {
         }
         let mut tasks = Vec::with_capacity(n.div_ceil(CHUNK));
         {
-            let mut tangential: &mut [Vec3] = tangential;
-            let mut rolling: &mut [Vec3] = rolling;
-            let mut slot: &[u32] = share_slot;
-            let mut partner: &mut [u32] = partner;
+            let mut tangential: &mut [Vec3] = &mut pairs.tangential;
+            let mut rolling: &mut [Vec3] = &mut pairs.rolling;
+            let mut share: &mut [PartnerShare] = &mut pairs.partner_share;
+            let mut partner: &mut [u32] = &mut pairs.partner;
             let mut force: &mut [Vec3] = &mut p.force;
             let mut torque: &mut [Vec3] = &mut p.torque;
             let mut moment: &mut [f64] = &mut rolling_moment;
@@ -193,8 +181,8 @@ impl World {
                     0
                 });
                 rolling = rest;
-                let (c, rest) = slot.split_at(pair_count);
-                slot = rest;
+                let (c, rest) = std::mem::take(&mut share).split_at_mut(pair_count);
+                share = rest;
                 let (h, rest) = std::mem::take(&mut partner).split_at_mut(pair_count);
                 partner = rest;
                 let (d, rest) = std::mem::take(&mut force).split_at_mut(end - start);
@@ -209,7 +197,7 @@ impl World {
                     start,
                     tangential: a,
                     rolling: b,
-                    slot: c,
+                    share: c,
                     partner: h,
                     force: d,
                     torque: e,
@@ -244,8 +232,7 @@ impl World {
                             partner: task.partner,
                             tangential: task.tangential,
                             rolling: task.rolling,
-                            slot: task.slot,
-                            shares,
+                            share: task.share,
                             walls: task.walls,
                             force: task.force,
                             torque: task.torque,
@@ -302,7 +289,9 @@ impl World {
                         force,
                         torque,
                         moment[i],
-                        &pairs.partner_share[range],
+                        &pairs.incidence_pair[range],
+                        &pairs.partner,
+                        &pairs.partner_share,
                         mass[i],
                         inverse_inertia[i],
                         build_mark[i],
