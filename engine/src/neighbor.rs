@@ -190,9 +190,6 @@ pub(crate) struct CellGrid {
     cell_start: Vec<u32>,
     /// Particle indices in cell order (stable within a cell).
     pub sorted: Vec<u32>,
-    /// The particles have been renumbered into cell order ([`CellGrid::renumber`]): `sorted`
-    /// is the identity, so a range of it is a range of particle indices.
-    in_cell_order: bool,
 }
 
 impl CellGrid {
@@ -234,7 +231,6 @@ impl CellGrid {
             periodic,
             cell_start: Vec::new(),
             sorted: Vec::new(),
-            in_cell_order: false,
         };
         let cells: Vec<u32> = positions
             .par_iter()
@@ -258,15 +254,6 @@ impl CellGrid {
         grid.cell_start = start;
         grid.sorted = sorted;
         grid
-    }
-
-    /// For a caller that renumbers the particles into cell order: returns the permutation
-    /// (new index k holds old particle `order[k]`) and makes the grid the identity on the new
-    /// numbering.
-    pub fn renumber(&mut self) -> Vec<u32> {
-        let identity = (0..self.sorted.len() as u32).collect();
-        self.in_cell_order = true;
-        std::mem::replace(&mut self.sorted, identity)
     }
 
     #[inline]
@@ -432,14 +419,9 @@ pub(crate) fn build_pair_list(
                     cells_of = cell;
                 }
                 for range in &ranges {
-                    // In cell order a stretch of `sorted` is a stretch of indices: the pairs
-                    // (i, j > i) lie past i.
-                    let range = if grid.in_cell_order {
-                        range.start.max(i + 1).min(range.end)..range.end
-                    } else {
-                        range.clone()
-                    };
-                    let candidates = grid.sorted[range.clone()].iter().zip(&packed[range]);
+                    let candidates = grid.sorted[range.clone()]
+                        .iter()
+                        .zip(&packed[range.clone()]);
                     for (&j, &(pj, reach_j)) in candidates {
                         let j = j as usize;
                         if j <= i {

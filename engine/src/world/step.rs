@@ -79,8 +79,8 @@ impl World {
         let mut grid = CellGrid::build(&domain, cell_size, &p.position);
         let sort_every = self.config.sort_every_rebuilds as u64;
         let half_skin = if sort_every > 0 && self.rebuilds % sort_every == 0 {
-            let sorted = grid.renumber();
-            p.permute(&sorted);
+            p.permute(&grid.sorted);
+            let sorted = std::mem::replace(&mut grid.sorted, (0..p.len() as u32).collect());
             sorted.iter().map(|&k| half_skin[k as usize]).collect()
         } else {
             half_skin
