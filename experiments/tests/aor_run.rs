@@ -161,6 +161,31 @@ fn escaped_grains_make_an_escaped_run() {
 }
 
 #[test]
+fn an_arch_over_the_outlet_makes_a_held_up_run_without_an_angle() {
+    // 5 g of 2.5 mm grains (about 230) fit in the funnel; an outlet of 7 mm (2.8 grains) arches
+    // at once. The few grains that pass come to rest on the plate, so the run ends at rest, but
+    // nearly all the mass is still in the funnel: no angle.
+    let mut spec = AorSpec::fast();
+    spec.set("total_mass", "0.005").unwrap();
+    spec.set("funnel.outlet_diameter", "0.007").unwrap();
+    let run = run_aor(&spec, &mut |_| Control::Continue).expect("the spec builds");
+    let r = &run.result;
+    let held = r.grains.held_up.mass / r.grains.inserted.mass;
+    assert!(held > spec.max_held_up_fraction, "{held} {r:?}");
+    assert_eq!(r.status, RunStatus::HeldUp, "{r:?}");
+    assert_eq!(r.angle_deg, None);
+    let message = r.message.as_deref().unwrap();
+    assert!(message.contains("still in the funnel"), "{message}");
+    // The same heap with the limit lifted is judged on its own terms again.
+    spec.set("max_held_up_fraction", "1").unwrap();
+    let r = run_aor(&spec, &mut |_| Control::Continue).unwrap().result;
+    assert_ne!(r.status, RunStatus::HeldUp, "{r:?}");
+    spec.set("max_held_up_fraction", "1.5").unwrap();
+    let err = spec.validate().unwrap_err().to_string();
+    assert!(err.contains("max_held_up_fraction"), "{err}");
+}
+
+#[test]
 fn a_heap_cut_by_the_time_cap_reports_how_far_from_rest_it_was() {
     // The fast pour: insertion ends at 0.2 s, checks every 50 ms from 0.3 s; the heap is
     // measurable from 0.5 s and at rest by kinetic energy at 0.7 s. Cut at 0.62 s, it ends by

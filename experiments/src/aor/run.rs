@@ -75,6 +75,9 @@ pub enum RunStatus {
     Ok,
     /// More than `max_escaped_fraction` of the mass left the plate.
     Escaped,
+    /// More than `max_held_up_fraction` of the mass was still in the funnel or tube when the
+    /// run ended (an arch over the outlet): the heap under it holds only part of the mass.
+    HeldUp,
     /// The heap never came to rest within the caps (or the funnel never passed all the mass).
     NotSettled,
     /// The grains do not form a measurable heap.
@@ -619,6 +622,11 @@ pub fn run_aor(
     } else {
         0.0
     };
+    let held_up_fraction = if inserted_mass > 0.0 {
+        held_up.mass / inserted_mass
+    } else {
+        0.0
+    };
     let came_to_rest = ended_by == EndedBy::AtRest;
     let rest = rest_state(&checks, &spec.settle);
     let (status, message) = if ended_by == EndedBy::Cancelled {
@@ -638,6 +646,19 @@ pub fn run_aor(
                 "{:.1} % of the mass left the plate (limit {:.1} %)",
                 100.0 * escaped_fraction,
                 100.0 * spec.max_escaped_fraction
+            )),
+        )
+    } else if held_up_fraction > spec.max_held_up_fraction {
+        (
+            RunStatus::HeldUp,
+            Some(format!(
+                "{:.1} % of the mass ({} grains) was still in the funnel or tube when the run \
+                 ended ({ended_by:?}; limit {:.1} %): an arch over the outlet; the heap under \
+                 it holds {:.1} % of the mass",
+                100.0 * held_up_fraction,
+                held_up.count,
+                100.0 * spec.max_held_up_fraction,
+                100.0 * on_base_mass / inserted_mass,
             )),
         )
     } else if let Err(e) = &measured {

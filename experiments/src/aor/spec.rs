@@ -28,6 +28,7 @@
 //! | `time_cap` | simulated time after insertion ends before giving up, s | 3.0 |
 //! | `wall_time_cap` | wall-clock seconds before giving up (`null`: none) | null |
 //! | `max_escaped_fraction` | escaped mass fraction above which the run is `escaped` | 0.05 |
+//! | `max_held_up_fraction` | mass fraction still in the funnel or tube at the end above which the run is `held_up` (an arch over the outlet) | 0.05 |
 //! | `time_step_rayleigh_fraction` | Δt as a fraction of the Rayleigh time of the smallest grain | 0.2 |
 //! | `seed` | factory RNG seed | 1 |
 //! | `measure.*` | [`MeasureSettings`] (e.g. `measure.directions`, `measure.band_low_fraction`) | see there |
@@ -371,6 +372,11 @@ pub struct AorSpec {
     /// Escaped mass above this fraction of the inserted mass makes the run `escaped`.
     #[serde(default = "default_max_escaped")]
     pub max_escaped_fraction: f64,
+    /// Mass still in (or above) the funnel or tube when the run ends, above this fraction of
+    /// the inserted mass, makes the run `held_up`: an arch over the outlet kept the grains, and
+    /// the heap under it is not the test's heap.
+    #[serde(default = "default_max_held_up")]
+    pub max_held_up_fraction: f64,
     /// Δt = this × Rayleigh time of the smallest grain (EDEM's rule; the paper used 20 %).
     #[serde(default = "default_rayleigh_fraction")]
     pub time_step_rayleigh_fraction: f64,
@@ -389,6 +395,9 @@ fn default_inlet_speed() -> f64 {
     0.5
 }
 fn default_max_escaped() -> f64 {
+    0.05
+}
+fn default_max_held_up() -> f64 {
     0.05
 }
 fn default_rayleigh_fraction() -> f64 {
@@ -494,6 +503,7 @@ impl AorSpec {
             time_cap: 3.0,
             wall_time_cap: None,
             max_escaped_fraction: default_max_escaped(),
+            max_held_up_fraction: default_max_held_up(),
             time_step_rayleigh_fraction: default_rayleigh_fraction(),
             seed: 1,
             measure: MeasureSettings::default(),
@@ -708,6 +718,9 @@ impl Spec for AorSpec {
         }
         if !(self.max_escaped_fraction >= 0.0 && self.max_escaped_fraction <= 1.0) {
             return Err(invalid("max_escaped_fraction", "must be in [0, 1]"));
+        }
+        if !(self.max_held_up_fraction >= 0.0 && self.max_held_up_fraction <= 1.0) {
+            return Err(invalid("max_held_up_fraction", "must be in [0, 1]"));
         }
         let f = self.time_step_rayleigh_fraction;
         if !(f > 0.0 && f <= 1.0) {
