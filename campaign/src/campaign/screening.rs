@@ -59,6 +59,14 @@ pub struct ScreeningOutcome {
     pub rule: CarryRule,
     /// The others and their values.
     pub held: Vec<HeldFactor>,
+    /// The first target's runs issued, runs with a value and residual degrees of freedom (see
+    /// [`ResponseEffects`]).
+    #[serde(default)]
+    pub runs: usize,
+    #[serde(default)]
+    pub runs_used: usize,
+    #[serde(default)]
+    pub residual_df: usize,
     /// Several targets: each response's own effects (the fields above are the first
     /// target's; `significant`, `carried` and `rule` are over all responses).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -82,11 +90,26 @@ pub struct ResponseEffects {
     pub t_critical: f64,
     /// Factors with p < alpha for this response, largest |t| first.
     pub significant: Vec<String>,
+    /// Runs the stage issued for this response's experiment (0 in campaigns stored before this
+    /// field existed).
+    #[serde(default)]
+    pub runs: usize,
+    /// Runs that gave this response a value (the others failed, e.g. a funnel that arched).
+    #[serde(default)]
+    pub runs_used: usize,
+    /// The fit's residual degrees of freedom: what is left to judge significance with.
+    #[serde(default)]
+    pub residual_df: usize,
 }
 
 impl ResponseEffects {
-    /// Reads one response's first-order fit.
-    fn of(response: &str, names: &[String], fit: &Fit, alpha: f64) -> ResponseEffects {
+    /// Runs issued but without a value for this response.
+    pub fn runs_without_value(&self) -> usize {
+        self.runs.saturating_sub(self.runs_used)
+    }
+
+    /// Reads one response's first-order fit; `runs` is how many runs the stage issued for it.
+    fn of(response: &str, names: &[String], fit: &Fit, runs: usize, alpha: f64) -> ResponseEffects {
         let coefs: Vec<_> = names
             .iter()
             .map(|n| {
@@ -119,17 +142,27 @@ impl ResponseEffects {
             t_values,
             p_values,
             significant,
+            runs,
+            runs_used: fit.n_runs(),
+            residual_df: fit.residual_df(),
         }
     }
 }
 
+/// One target's screening fit: its label, the fit, and how many runs the stage issued for it.
+pub(crate) struct ScreeningFit {
+    pub label: String,
+    pub fit: Fit,
+    pub runs: usize,
+}
+
 /// Significance, carried and held factors from the screening fits, one per target. A factor is
 /// significant if it is for any response, and ranks by its largest |t| over the responses.
-pub(crate) fn screen(r: &CampaignRequest, fits: &[(String, Fit)]) -> ScreeningOutcome {
+pub(crate) fn screen(r: &CampaignRequest, fits: &[ScreeningFit]) -> ScreeningOutcome {
     let names: Vec<String> = r.factors.iter().map(|f| f.name.clone()).collect();
     let effects: Vec<ResponseEffects> = fits
         .iter()
-        .map(|(label, fit)| ResponseEffects::of(label, &names, fit, r.alpha))
+        .map(|f| ResponseEffects::of(&f.label, &names, &f.fit, f.runs, r.alpha))
         .collect();
     let abs_t = |i: usize| {
         effects
@@ -186,6 +219,9 @@ pub(crate) fn screen(r: &CampaignRequest, fits: &[(String, Fit)]) -> ScreeningOu
         carried: carried.iter().map(|&i| names[i].clone()).collect(),
         rule,
         held,
+        runs: first.runs,
+        runs_used: first.runs_used,
+        residual_df: first.residual_df,
         responses: if effects.len() > 1 {
             effects
         } else {
@@ -238,7 +274,11 @@ impl Campaign {
             let fit = screening_fit(&self.request, &target, finished.batch, &finished.runs)?;
             let (_, y, _) = observations(finished.batch, &finished.runs, &names, &target.metric)?;
             goals.push(target_goal(target.value, &y));
-            fits.push((target.label, fit));
+            fits.push(ScreeningFit {
+                label: target.label,
+                fit,
+                runs: finished.runs.len(),
+            });
         }
         let outcome = screen(&self.request, &fits);
         self.decide(

@@ -579,6 +579,9 @@ mod tests {
             intercept,
             t_critical: f64::NAN,
             significant: Vec::new(),
+            runs: 12,
+            runs_used: 12,
+            residual_df: 9,
         }
     }
 
@@ -600,6 +603,9 @@ mod tests {
             carried: vec!["A".into(), "B".into()],
             rule: CarryRule::Significant,
             held: Vec::new(),
+            runs: 12,
+            runs_used: 12,
+            residual_df: 9,
             responses,
         };
         let carried = [0, 2];

@@ -157,6 +157,25 @@ pub(crate) fn screening_plan(
     text
 }
 
+/// Runs of a stage that gave a response no value (a failed run, e.g. a funnel that arched),
+/// and what that leaves the fit; `None` when every run counted (or the counts predate them).
+fn runs_without_value(runs: usize, used: usize, residual_df: usize) -> Option<String> {
+    if runs == 0 || used >= runs {
+        return None;
+    }
+    Some(format!(
+        "{} of {runs} runs gave no value, so the fit has {residual_df} residual degree{} of \
+         freedom{}",
+        runs - used,
+        if residual_df == 1 { "" } else { "s" },
+        if residual_df < 3 {
+            ": too few to tell an effect from noise"
+        } else {
+            ""
+        }
+    ))
+}
+
 /// Stage 1 outcome: what was significant, what is carried and why, what is held.
 pub(crate) fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> String {
     if !s.responses.is_empty() {
@@ -208,6 +227,9 @@ pub(crate) fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) ->
             sig_text(&s.carried)
         ),
     };
+    if let Some(note) = runs_without_value(s.runs, s.runs_used, s.residual_df) {
+        text.push_str(&format!(" {note}."));
+    }
     if !s.held.is_empty() {
         let held_names: Vec<String> = s.held.iter().map(|h| h.name.clone()).collect();
         let values: Vec<String> = s
@@ -250,13 +272,15 @@ fn screening_overall(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> St
                 })
                 .collect();
             format!(
-                "{}: {}",
+                "{}: {}{}",
                 e.response,
                 if sig.is_empty() {
                     "none".to_owned()
                 } else {
                     sig.join(", ")
-                }
+                },
+                runs_without_value(e.runs, e.runs_used, e.residual_df)
+                    .map_or(String::new(), |note| format!(" ({note})"))
             )
         })
         .collect();
@@ -843,4 +867,30 @@ pub(crate) fn finished(parameters: &[CalibratedValue]) -> String {
         })
         .collect();
     format!("Finished: {}.", params.join(", "))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::runs_without_value;
+
+    #[test]
+    fn failed_runs_are_named_with_the_degrees_of_freedom_they_leave() {
+        assert_eq!(runs_without_value(12, 12, 4), None);
+        assert_eq!(
+            runs_without_value(0, 0, 0),
+            None,
+            "counts from before they existed"
+        );
+        assert_eq!(
+            runs_without_value(12, 9, 1).as_deref(),
+            Some(
+                "3 of 12 runs gave no value, so the fit has 1 residual degree of freedom: too \
+                 few to tell an effect from noise"
+            )
+        );
+        assert_eq!(
+            runs_without_value(12, 11, 3).as_deref(),
+            Some("1 of 12 runs gave no value, so the fit has 3 residual degrees of freedom")
+        );
+    }
 }
