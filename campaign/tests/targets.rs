@@ -457,6 +457,47 @@ fn targets_that_cannot_hold_together_end_in_needs_attention_naming_the_response(
 }
 
 #[test]
+fn a_validation_still_runs_when_verification_gives_up_and_the_campaign_then_stops() {
+    // As above, 45 is out of reach; the drilling validation runs at the most desirable setting
+    // found, and the campaign stops for attention with verification's reason after it.
+    let (campaign, _, next) = drive(request(json!({
+        "targets": [
+            {"response": "aor.angle_deg", "target": 45.0, "tolerance": {"relative_pct": 2}},
+            {"response": "shear.cohesion_kpa", "target": 2.5, "tolerance": {"relative_pct": 4}}
+        ],
+        "response_surface": {"max_extra_rounds": 1},
+        "validation": {
+            "experiment": lookup(&["opening_diameter_mm", "effective_depth_mm"]),
+            "measured": {"opening_diameter_mm": 63.20, "effective_depth_mm": 603.66},
+            "tolerance_pct": 5,
+        }
+    })));
+    let Next::NeedsAttention(reason) = next else {
+        panic!("expected a stop: {next:?}");
+    };
+    assert!(reason.contains("aor.angle_deg"), "{reason}");
+    assert!(matches!(campaign.status, Status::NeedsAttention { .. }));
+    assert_eq!(campaign.verifications.len(), 2);
+    assert!(campaign.verifications.iter().all(|v| !v.within_tolerance));
+    assert_eq!(campaign.batches.last().unwrap().stage, StageKind::Drilling);
+    let v = campaign.drilling.as_ref().expect("validation reported");
+    assert_eq!(v.metrics.len(), 2);
+    assert!(v.metrics.iter().all(|m| m.simulated.is_some()), "{v:?}");
+    assert!(campaign.unverified.is_none(), "taken when the stop is made");
+    let plan = campaign
+        .decisions
+        .iter()
+        .find(|d| d.stage == StageKind::Drilling)
+        .unwrap();
+    assert!(
+        plan.text.contains("not a calibrated prediction"),
+        "{}",
+        plan.text
+    );
+    assert!(campaign.summary.is_none());
+}
+
+#[test]
 fn a_factor_scoped_to_one_experiment_is_written_only_into_its_spec() {
     // A acts on the angle only and C (which moves nothing) on the shear test only: the other
     // experiment's batches keep the column in their design but never write it.

@@ -59,7 +59,8 @@ pub(crate) fn compare(drilling: &DrillingValidation, runs: &[RunView]) -> Drilli
 }
 
 impl Campaign {
-    /// Issues the drilling batch at the verified optimum.
+    /// Issues the drilling batch at the last optimum (verified, or the most desirable setting
+    /// found when verification gave up: then [`Campaign::unverified`] is set).
     pub(super) fn start_drilling(&mut self) -> Result<Next, Halt> {
         let drilling = self.request.drilling.clone().expect("drilling requested");
         let round = self.surfaces.last().expect("round").clone();
@@ -95,7 +96,10 @@ impl Campaign {
                 high: f.high,
             })
             .collect();
-        self.decide(StageKind::Drilling, wording::drilling_plan(&drilling));
+        self.decide(
+            StageKind::Drilling,
+            wording::drilling_plan(&drilling, self.unverified.is_some()),
+        );
         Ok(Next::Submit(self.issue(
             StageKind::Drilling,
             String::new(),
@@ -118,6 +122,10 @@ impl Campaign {
             wording::drilling(&outcome, self.request.is_multi()),
         );
         self.drilling = Some(outcome);
-        Ok(self.finish())
+        match self.unverified.take() {
+            // Validated at a setting verification did not accept: the campaign still stops.
+            Some(reason) => Ok(self.stop_with(reason)),
+            None => Ok(self.finish()),
+        }
     }
 }

@@ -209,6 +209,10 @@ pub struct Campaign {
     /// run (several-targets form with more than one experiment).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub pending: Vec<StageResult>,
+    /// Why verification gave up, while the drilling validation runs anyway at the most
+    /// desirable setting found; the campaign stops with this reason once it is in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unverified: Option<String>,
 }
 
 /// Why a campaign stops for a person to look: statistical dead ends, not misuse. The words are
@@ -298,6 +302,7 @@ impl Campaign {
             drilling: None,
             summary: None,
             pending: Vec::new(),
+            unverified: None,
         };
         let batch = campaign.start_screening()?;
         Ok((campaign, batch))
@@ -357,15 +362,17 @@ impl Campaign {
         match next {
             Ok(next) => Ok(next),
             Err(Halt::Misuse(e)) => Err(e),
-            Err(Halt::Stop(stop)) => {
-                let reason = wording::stop(&stop);
-                self.status = Status::NeedsAttention {
-                    reason: reason.clone(),
-                };
-                self.decide(self.stage, wording::stopped(&reason));
-                Ok(Next::NeedsAttention(reason))
-            }
+            Err(Halt::Stop(stop)) => Ok(self.stop_with(wording::stop(&stop))),
         }
+    }
+
+    /// Ends the campaign as needing a person's attention, for `reason`.
+    fn stop_with(&mut self, reason: String) -> Next {
+        self.status = Status::NeedsAttention {
+            reason: reason.clone(),
+        };
+        self.decide(self.stage, wording::stopped(&reason));
+        Next::NeedsAttention(reason)
     }
 
     fn decide(&mut self, stage: StageKind, text: String) {

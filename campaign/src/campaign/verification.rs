@@ -223,21 +223,31 @@ impl Campaign {
                 let half: Vec<f64> = round.half_ranges.iter().map(|h| h * scale).collect();
                 self.start_surface(optimum.natural, half)
             }
-            VerificationNext::GiveUp if outcome.checks.is_empty() => Err(Stop::StillOutside {
-                rounds: self.round + 1,
-                mean: outcome.mean,
-                relative_error_pct: outcome.relative_error_pct,
+            VerificationNext::GiveUp => {
+                let stop = if outcome.checks.is_empty() {
+                    Stop::StillOutside {
+                        rounds: self.round + 1,
+                        mean: outcome.mean,
+                        relative_error_pct: outcome.relative_error_pct,
+                    }
+                } else {
+                    Stop::TargetsStillOutside {
+                        rounds: self.round + 1,
+                        outside: outcome
+                            .checks
+                            .into_iter()
+                            .filter(|c| !c.within_tolerance)
+                            .collect(),
+                    }
+                };
+                if self.request.drilling.is_some() {
+                    // The validation still tells the lab how far the best setting found is
+                    // from its held-back measurement; the campaign stops after it.
+                    self.unverified = Some(wording::stop(&stop));
+                    return self.start_drilling();
+                }
+                Err(stop.into())
             }
-            .into()),
-            VerificationNext::GiveUp => Err(Stop::TargetsStillOutside {
-                rounds: self.round + 1,
-                outside: outcome
-                    .checks
-                    .into_iter()
-                    .filter(|c| !c.within_tolerance)
-                    .collect(),
-            }
-            .into()),
         }
     }
 }

@@ -814,10 +814,17 @@ pub(crate) fn verification(
 }
 
 /// Stage 6 plan.
-pub(crate) fn drilling_plan(d: &DrillingValidation) -> String {
+pub(crate) fn drilling_plan(d: &DrillingValidation, unverified: bool) -> String {
+    let at = if unverified {
+        "the most desirable setting found, which verification did not accept (so this is not a \
+         calibrated prediction: it shows how far that setting is from the measurement; the \
+         campaign stops for attention after it)"
+    } else {
+        "the calibrated parameters"
+    };
     format!(
-        "Drilling validation: {} run(s) of the drilling experiment at the calibrated \
-         parameters, compared with the measured {} (tolerance {} %).",
+        "Drilling validation: {} run(s) of the drilling experiment at {at}, compared with the \
+         measured {} (tolerance {} %).",
         d.replicates,
         list(&d.measured.keys().cloned().collect::<Vec<_>>()),
         d.tolerance_pct
