@@ -9,6 +9,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_api::{
     ApiError, BatchCreated, BatchState, BatchStatus, BatchSummary, CampaignCreated, CampaignView,
+    RunState, RunView,
 };
 use reqwest::StatusCode;
 use serde::de::DeserializeOwned;
@@ -190,6 +191,34 @@ impl UserClient {
     pub async fn batch(&self, id: Uuid) -> Result<BatchStatus> {
         self.expect(self.request(reqwest::Method::GET, &format!("/v1/batches/{id}")))
             .await
+    }
+
+    /// Every run of a batch, in run order.
+    pub async fn runs(&self, id: Uuid) -> Result<Vec<RunView>> {
+        self.expect(self.request(reqwest::Method::GET, &format!("/v1/batches/{id}/runs")))
+            .await
+    }
+
+    /// Prints one line per dead run of batch `id` (its factors and why it failed), so a batch
+    /// with failed runs says why, not only how many.
+    pub async fn print_dead_runs(&self, id: Uuid) -> Result<()> {
+        for run in self.runs(id).await? {
+            if run.status != RunState::Dead {
+                continue;
+            }
+            let factors: Vec<String> = run
+                .factors
+                .iter()
+                .map(|f| format!("{} {}", f.name, f.natural))
+                .collect();
+            println!(
+                "  dead run {} ({}): {}",
+                run.run_index,
+                factors.join(", "),
+                run.last_error.as_deref().unwrap_or("no message")
+            );
+        }
+        Ok(())
     }
 
     /// The analysis as text; `None` while it is not ready yet.
@@ -412,6 +441,9 @@ pub async fn finish_watch(client: &UserClient, id: Uuid, interval: Duration) -> 
         "batch {id} {:?}: {} completed, {} dead, {} cancelled",
         status.summary.state, counts.completed, counts.dead, counts.cancelled
     );
+    if counts.dead > 0 {
+        client.print_dead_runs(id).await?;
+    }
     if let Some(text) = analysis {
         println!("{text}");
     }

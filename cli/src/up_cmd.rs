@@ -248,6 +248,9 @@ async fn follow_submissions(client: &UserClient, config: &UpConfig) -> Result<()
             "batch {id} ({}) {:?}: {} completed, {} dead",
             status.summary.name, status.summary.state, counts.completed, counts.dead
         );
+        if counts.dead > 0 {
+            client.print_dead_runs(id).await?;
+        }
         if let Some(text) = analysis {
             println!("{text}");
         }

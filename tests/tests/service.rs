@@ -236,6 +236,44 @@ fn sigterm_releases_the_running_job_without_counting_an_attempt() {
 }
 
 #[test]
+fn repose_up_names_each_dead_run_and_why_it_failed() {
+    // Four table rows and a fifth design point between two of them: the table has no row for
+    // it, a permanent failure, so that run is dead at once; the others complete.
+    let dir = tempfile::tempdir().unwrap();
+    let mut batch = replay_batch(4, 0.0);
+    batch["design"]["points"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!([1.5]));
+    let batch_file = dir.path().join("replay.json");
+    std::fs::write(&batch_file, batch.to_string()).unwrap();
+    let out = std::process::Command::new(common::repose_bin())
+        .args([
+            "up",
+            "--workers",
+            "1",
+            "--listen",
+            "127.0.0.1:0",
+            "--exit-when-done",
+        ])
+        .arg("--db")
+        .arg(dir.path().join("up.db"))
+        .arg("--submit")
+        .arg(&batch_file)
+        .output()
+        .unwrap();
+    let stdout = common::stdout(&out);
+    assert!(!out.status.success(), "a dead run is not a clean finish");
+    assert!(stdout.contains("4 completed, 1 dead"), "{stdout}");
+    let line = stdout
+        .lines()
+        .find(|l| l.trim_start().starts_with("dead run"))
+        .unwrap_or_else(|| panic!("no dead-run line: {stdout}"));
+    assert!(line.contains("x 1.5"), "{line}");
+    assert!(line.contains("no row matching"), "{line}");
+}
+
+#[test]
 fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
     let dir = tempfile::tempdir().unwrap();
     let batch_file = dir.path().join("replay.json");
