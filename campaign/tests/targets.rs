@@ -494,6 +494,17 @@ fn a_validation_still_runs_when_verification_gives_up_and_the_campaign_then_stop
         "{}",
         plan.text
     );
+    let result = campaign
+        .decisions
+        .iter()
+        .filter(|d| d.stage == StageKind::Drilling)
+        .nth(1)
+        .unwrap();
+    assert!(
+        result.text.contains("does not reproduce the targets") && !result.text.contains("FAILED"),
+        "{}",
+        result.text
+    );
     assert!(campaign.summary.is_none());
 }
 

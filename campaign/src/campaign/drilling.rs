@@ -119,7 +119,7 @@ impl Campaign {
         let outcome = compare(drilling, &finished.runs);
         self.decide(
             StageKind::Drilling,
-            wording::drilling(&outcome, self.request.is_multi()),
+            wording::drilling(&outcome, self.request.is_multi(), self.unverified.is_some()),
         );
         self.drilling = Some(outcome);
         match self.unverified.take() {

@@ -832,7 +832,11 @@ pub(crate) fn drilling_plan(d: &DrillingValidation, unverified: bool) -> String 
 }
 
 /// Stage 6 outcome: each metric measured against simulated.
-pub(crate) fn drilling(outcome: &DrillingOutcome, several_targets: bool) -> String {
+pub(crate) fn drilling(
+    outcome: &DrillingOutcome,
+    several_targets: bool,
+    unverified: bool,
+) -> String {
     let lines: Vec<String> = outcome
         .metrics
         .iter()
@@ -849,7 +853,13 @@ pub(crate) fn drilling(outcome: &DrillingOutcome, several_targets: bool) -> Stri
         .collect();
     format!(
         "Drilling validation {}: {}.",
-        if outcome.passed {
+        if unverified {
+            if outcome.passed {
+                "within tolerance, at a setting that does not reproduce the targets"
+            } else {
+                "outside tolerance, at a setting that does not reproduce the targets either"
+            }
+        } else if outcome.passed {
             "passed"
         } else if several_targets {
             "FAILED — the parameters reproduce the targets but not the drilled hole"
