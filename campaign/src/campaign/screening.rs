@@ -59,14 +59,9 @@ pub struct ScreeningOutcome {
     pub rule: CarryRule,
     /// The others and their values.
     pub held: Vec<HeldFactor>,
-    /// The first target's runs issued, runs with a value and residual degrees of freedom (see
-    /// [`ResponseEffects`]).
-    #[serde(default)]
-    pub runs: usize,
-    #[serde(default)]
-    pub runs_used: usize,
-    #[serde(default)]
-    pub residual_df: usize,
+    /// The first target's run counts.
+    #[serde(flatten)]
+    pub counts: RunCounts,
     /// Several targets: each response's own effects (the fields above are the first
     /// target's; `significant`, `carried` and `rule` are over all responses).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -90,11 +85,19 @@ pub struct ResponseEffects {
     pub t_critical: f64,
     /// Factors with p < alpha for this response, largest |t| first.
     pub significant: Vec<String>,
-    /// Runs the stage issued for this response's experiment (0 in campaigns stored before this
-    /// field existed).
+    /// How many runs the fit rests on.
+    #[serde(flatten)]
+    pub counts: RunCounts,
+}
+
+/// How many runs a response's screening fit rests on (all 0 in campaigns stored before these
+/// fields existed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct RunCounts {
+    /// Runs the stage issued for the response's experiment.
     #[serde(default)]
     pub runs: usize,
-    /// Runs that gave this response a value (the others failed, e.g. a funnel that arched).
+    /// Runs that gave the response a value (the others failed, e.g. a funnel that arched).
     #[serde(default)]
     pub runs_used: usize,
     /// The fit's residual degrees of freedom: what is left to judge significance with.
@@ -103,11 +106,6 @@ pub struct ResponseEffects {
 }
 
 impl ResponseEffects {
-    /// Runs issued but without a value for this response.
-    pub fn runs_without_value(&self) -> usize {
-        self.runs.saturating_sub(self.runs_used)
-    }
-
     /// Reads one response's first-order fit; `runs` is how many runs the stage issued for it.
     fn of(response: &str, names: &[String], fit: &Fit, runs: usize, alpha: f64) -> ResponseEffects {
         let coefs: Vec<_> = names
@@ -142,9 +140,11 @@ impl ResponseEffects {
             t_values,
             p_values,
             significant,
-            runs,
-            runs_used: fit.n_runs(),
-            residual_df: fit.residual_df(),
+            counts: RunCounts {
+                runs,
+                runs_used: fit.n_runs(),
+                residual_df: fit.residual_df(),
+            },
         }
     }
 }
@@ -219,9 +219,7 @@ pub(crate) fn screen(r: &CampaignRequest, fits: &[ScreeningFit]) -> ScreeningOut
         carried: carried.iter().map(|&i| names[i].clone()).collect(),
         rule,
         held,
-        runs: first.runs,
-        runs_used: first.runs_used,
-        residual_df: first.residual_df,
+        counts: first.counts,
         responses: if effects.len() > 1 {
             effects
         } else {

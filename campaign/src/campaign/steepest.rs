@@ -568,7 +568,7 @@ impl Campaign {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::campaign::screening::{CarryRule, ResponseEffects};
+    use crate::campaign::screening::{CarryRule, ResponseEffects, RunCounts};
 
     fn effects(response: &str, intercept: f64, estimates: Vec<f64>) -> ResponseEffects {
         ResponseEffects {
@@ -579,9 +579,11 @@ mod tests {
             intercept,
             t_critical: f64::NAN,
             significant: Vec::new(),
-            runs: 12,
-            runs_used: 12,
-            residual_df: 9,
+            counts: RunCounts {
+                runs: 12,
+                runs_used: 12,
+                residual_df: 9,
+            },
         }
     }
 
@@ -603,9 +605,11 @@ mod tests {
             carried: vec!["A".into(), "B".into()],
             rule: CarryRule::Significant,
             held: Vec::new(),
-            runs: 12,
-            runs_used: 12,
-            residual_df: 9,
+            counts: RunCounts {
+                runs: 12,
+                runs_used: 12,
+                residual_df: 9,
+            },
             responses,
         };
         let carried = [0, 2];

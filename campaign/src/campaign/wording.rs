@@ -8,7 +8,7 @@ use repose_doe::design::{Factor, PathDirection};
 use super::drilling::DrillingOutcome;
 use super::model::ModelRole;
 use super::optimum::OptimumFound;
-use super::screening::{CarryRule, ScreeningOutcome};
+use super::screening::{CarryRule, RunCounts, ScreeningOutcome};
 use super::steepest::{CornerSide, DirectionReason, PathEnd, PathState};
 use super::surface::{SurfaceFitSummary, SurfaceLayout, SurfaceNote};
 use super::verification::{VerificationNext, VerificationOutcome};
@@ -159,7 +159,12 @@ pub(crate) fn screening_plan(
 
 /// Runs of a stage that gave a response no value (a failed run, e.g. a funnel that arched),
 /// and what that leaves the fit; `None` when every run counted (or the counts predate them).
-fn runs_without_value(runs: usize, used: usize, residual_df: usize) -> Option<String> {
+fn runs_without_value(counts: RunCounts) -> Option<String> {
+    let RunCounts {
+        runs,
+        runs_used: used,
+        residual_df,
+    } = counts;
     if runs == 0 || used >= runs {
         return None;
     }
@@ -227,7 +232,7 @@ pub(crate) fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) ->
             sig_text(&s.carried)
         ),
     };
-    if let Some(note) = runs_without_value(s.runs, s.runs_used, s.residual_df) {
+    if let Some(note) = runs_without_value(s.counts) {
         text.push_str(&format!(" {note}."));
     }
     if !s.held.is_empty() {
@@ -279,8 +284,7 @@ fn screening_overall(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> St
                 } else {
                     sig.join(", ")
                 },
-                runs_without_value(e.runs, e.runs_used, e.residual_df)
-                    .map_or(String::new(), |note| format!(" ({note})"))
+                runs_without_value(e.counts).map_or(String::new(), |note| format!(" ({note})"))
             )
         })
         .collect();
@@ -888,25 +892,33 @@ pub(crate) fn finished(parameters: &[CalibratedValue]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::runs_without_value;
+    use super::{runs_without_value, RunCounts};
+
+    fn counts(runs: usize, runs_used: usize, residual_df: usize) -> RunCounts {
+        RunCounts {
+            runs,
+            runs_used,
+            residual_df,
+        }
+    }
 
     #[test]
     fn failed_runs_are_named_with_the_degrees_of_freedom_they_leave() {
-        assert_eq!(runs_without_value(12, 12, 4), None);
+        assert_eq!(runs_without_value(counts(12, 12, 4)), None);
         assert_eq!(
-            runs_without_value(0, 0, 0),
+            runs_without_value(counts(0, 0, 0)),
             None,
             "counts from before they existed"
         );
         assert_eq!(
-            runs_without_value(12, 9, 1).as_deref(),
+            runs_without_value(counts(12, 9, 1)).as_deref(),
             Some(
                 "3 of 12 runs gave no value, so the fit has 1 residual degree of freedom: too \
                  few to tell an effect from noise"
             )
         );
         assert_eq!(
-            runs_without_value(12, 11, 3).as_deref(),
+            runs_without_value(counts(12, 11, 3)).as_deref(),
             Some("1 of 12 runs gave no value, so the fit has 3 residual degrees of freedom")
         );
     }
