@@ -106,8 +106,13 @@ pub struct RunCounts {
 }
 
 impl ResponseEffects {
-    /// Reads one response's first-order fit; `runs` is how many runs the stage issued for it.
-    fn of(response: &str, names: &[String], fit: &Fit, runs: usize, alpha: f64) -> ResponseEffects {
+    /// Reads one response's first-order fit.
+    fn of(screened: &ScreeningFit, names: &[String], alpha: f64) -> ResponseEffects {
+        let ScreeningFit {
+            label: response,
+            fit,
+            runs,
+        } = screened;
         let coefs: Vec<_> = names
             .iter()
             .map(|n| {
@@ -141,7 +146,7 @@ impl ResponseEffects {
             p_values,
             significant,
             counts: RunCounts {
-                runs,
+                runs: *runs,
                 runs_used: fit.n_runs(),
                 residual_df: fit.residual_df(),
             },
@@ -162,7 +167,7 @@ pub(crate) fn screen(r: &CampaignRequest, fits: &[ScreeningFit]) -> ScreeningOut
     let names: Vec<String> = r.factors.iter().map(|f| f.name.clone()).collect();
     let effects: Vec<ResponseEffects> = fits
         .iter()
-        .map(|f| ResponseEffects::of(&f.label, &names, &f.fit, f.runs, r.alpha))
+        .map(|f| ResponseEffects::of(f, &names, r.alpha))
         .collect();
     let abs_t = |i: usize| {
         effects

@@ -857,18 +857,17 @@ pub(crate) fn drilling(
         .collect();
     format!(
         "Drilling validation {}: {}.",
-        if unverified {
-            if outcome.passed {
-                "within tolerance, at a setting that does not reproduce the targets"
-            } else {
-                "outside tolerance, at a setting that does not reproduce the targets either"
+        match (unverified, outcome.passed, several_targets) {
+            (true, true, _) => "within tolerance, at a setting that does not reproduce the targets",
+            (true, false, _) =>
+                "outside tolerance, at a setting that does not reproduce the targets",
+            (false, true, _) => "passed",
+            (false, false, true) => {
+                "FAILED — the parameters reproduce the targets but not the drilled hole"
             }
-        } else if outcome.passed {
-            "passed"
-        } else if several_targets {
-            "FAILED — the parameters reproduce the targets but not the drilled hole"
-        } else {
-            "FAILED — the parameters reproduce the angle of repose but not the drilled hole"
+            (false, false, false) => {
+                "FAILED — the parameters reproduce the angle of repose but not the drilled hole"
+            }
         },
         lines.join("; ")
     )

@@ -617,16 +617,15 @@ pub fn run_aor(
         },
         Err(_) => Amount::default(),
     };
-    let escaped_fraction = if inserted_mass > 0.0 {
-        escaped.mass / inserted_mass
-    } else {
-        0.0
+    let of_inserted = |mass: f64| {
+        if inserted_mass > 0.0 {
+            mass / inserted_mass
+        } else {
+            0.0
+        }
     };
-    let held_up_fraction = if inserted_mass > 0.0 {
-        held_up.mass / inserted_mass
-    } else {
-        0.0
-    };
+    let escaped_fraction = of_inserted(escaped.mass);
+    let held_up_fraction = of_inserted(held_up.mass);
     let came_to_rest = ended_by == EndedBy::AtRest;
     let rest = rest_state(&checks, &spec.settle);
     let (status, message) = if ended_by == EndedBy::Cancelled {
@@ -658,7 +657,7 @@ pub fn run_aor(
                 100.0 * held_up_fraction,
                 held_up.count,
                 100.0 * spec.max_held_up_fraction,
-                100.0 * on_base_mass / inserted_mass,
+                100.0 * of_inserted(on_base_mass),
             )),
         )
     } else if let Err(e) = &measured {

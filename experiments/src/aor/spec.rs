@@ -716,11 +716,13 @@ impl Spec for AorSpec {
         if let Some(cap) = self.wall_time_cap {
             positive("wall_time_cap", cap)?;
         }
-        if !(self.max_escaped_fraction >= 0.0 && self.max_escaped_fraction <= 1.0) {
-            return Err(invalid("max_escaped_fraction", "must be in [0, 1]"));
-        }
-        if !(self.max_held_up_fraction >= 0.0 && self.max_held_up_fraction <= 1.0) {
-            return Err(invalid("max_held_up_fraction", "must be in [0, 1]"));
+        for (path, v) in [
+            ("max_escaped_fraction", self.max_escaped_fraction),
+            ("max_held_up_fraction", self.max_held_up_fraction),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(invalid(path, "must be in [0, 1]"));
+            }
         }
         let f = self.time_step_rayleigh_fraction;
         if !(f > 0.0 && f <= 1.0) {
