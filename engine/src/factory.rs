@@ -69,6 +69,23 @@ pub enum Region {
 }
 
 impl Region {
+    /// The axis-aligned box that holds the region (m): every sphere it places lies inside.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        match *self {
+            Region::Box { min, max } => (min, max),
+            Region::Cylinder {
+                axis_x,
+                axis_y,
+                radius,
+                z_min,
+                z_max,
+            } => (
+                Vec3::new(axis_x - radius, axis_y - radius, z_min),
+                Vec3::new(axis_x + radius, axis_y + radius, z_max),
+            ),
+        }
+    }
+
     fn validate(&self) -> Result<(), FactoryError> {
         let finite = |field, v: Vec3| {
             if v.iter().all(|c| c.is_finite()) {
@@ -501,6 +518,23 @@ pub enum ParticleSource {
 }
 
 impl ParticleSource {
+    /// The box every particle it places lies in, for a source that tests for room (a
+    /// factory); `None` for a list, which places its particles where they are listed.
+    pub fn region_bounds(&self) -> Option<(Vec3, Vec3)> {
+        match self {
+            ParticleSource::Factory(f) => Some(f.spec.region.bounds()),
+            ParticleSource::List(_) => None,
+        }
+    }
+
+    /// The largest radius a factory may insert (0 for a list, which tests for no room).
+    pub fn max_radius(&self) -> f64 {
+        match self {
+            ParticleSource::Factory(f) => f.spec.size.max_radius(),
+            ParticleSource::List(_) => 0.0,
+        }
+    }
+
     /// Spawns what is due in the step `[t, t + dt]` (see [`Factory::spawn`]).
     pub fn spawn(
         &mut self,

@@ -955,6 +955,80 @@ fn a_factory_fills_particles_without_overlap_and_they_settle_in_a_box() {
 }
 
 #[test]
+fn a_factory_places_no_grain_on_one_whose_centre_lies_just_outside_its_region() {
+    // The overlap test sees only the grains near the factory's region. A layer of grains with
+    // their centres half a radius below the region's floor reaches into it; grains the factory
+    // places on its floor must still clear them. Without gravity nothing moves unless a new
+    // grain overlaps another, so after the steps that insert, every pair must be apart.
+    use repose_engine::distribution::{SizeDistribution, SizeDistributionSpec};
+    use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
+    use repose_engine::particles::ParticleSpec;
+    let r = 0.002;
+    let materials = table(ball_material(), wall_material(), 0.3, 0.5, 0.1);
+    let dt = materials.rayleigh_time_step(BALL, r, 0.2);
+    let mut world = World::new(
+        materials,
+        config(dt, Vec3::zeros(), Integrator::SymplecticEuler),
+    )
+    .unwrap();
+    let (floor, half) = (0.01, 0.012);
+    let spacing = 2.05 * r;
+    let mut x = -half - r;
+    while x <= half + r {
+        let mut y = -half - r;
+        while y <= half + r {
+            world
+                .add_particle(ParticleSpec::at_rest(
+                    Vec3::new(x, y, floor - 0.5 * r),
+                    r,
+                    BALL,
+                ))
+                .unwrap();
+            y += spacing;
+        }
+        x += spacing;
+    }
+    let layer = world.particles().len();
+    let size = SizeDistribution::new(SizeDistributionSpec::Fixed { radius: r }).unwrap();
+    let spec = FactorySpec {
+        region: Region::Box {
+            min: Vec3::new(-half, -half, floor),
+            max: Vec3::new(half, half, floor + 2.5 * r),
+        },
+        mass_rate: 50.0,
+        total_mass: 0.05,
+        start_time: 0.0,
+        velocity: Vec3::zeros(),
+        size,
+        max_attempts_per_particle: 200,
+    };
+    world
+        .add_source(
+            ParticleSource::Factory(Factory::new(spec, 2500.0).unwrap()),
+            BALL,
+        )
+        .unwrap();
+    for _ in 0..40 {
+        world.step();
+    }
+    let p = world.particles();
+    println!("{layer} grains in the layer, {} placed", p.len() - layer);
+    assert!(p.len() > layer + 10, "the factory must place grains");
+    for i in layer..p.len() {
+        for k in 0..p.len() {
+            if k != i {
+                let gap = (p.position[i] - p.position[k]).norm() - p.radius[i] - p.radius[k];
+                assert!(
+                    gap >= -1e-12,
+                    "new grain {i} overlaps grain {k} by {:.3e} m",
+                    -gap
+                );
+            }
+        }
+    }
+}
+
+#[test]
 fn contact_histories_survive_rebuilds_and_resorting() {
     // Same frictional gas twice: once with the usual occasional rebuilds, once rebuilding and
     // re-sorting the particles before every step. If a tangential spring were lost or given

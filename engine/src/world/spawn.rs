@@ -2,27 +2,56 @@
 
 use super::*;
 
+/// The existing particles a grain inserted by one source could touch: those within `reach`
+/// of the source's region box (all of them in a periodic domain, where the minimum image can
+/// bring a far grain near), with a cell grid over just those. Built once per source and step, and only if the source
+/// tries a spot; a pour's factory region holds a few dozen of the world's grains, so the
+/// overlap tests no longer cost a grid over every grain.
+pub(super) struct NearSource {
+    grid: CellGrid,
+    /// World index of each particle the grid knows (the grid's indices point into this).
+    index: Vec<u32>,
+    /// Largest existing radius plus the largest radius the source inserts.
+    reach: f64,
+}
+
+impl NearSource {
+    fn new(world: &World, bounds: Option<(Vec3, Vec3)>, max_new_radius: f64) -> NearSource {
+        let p = &world.particles;
+        let domain = &world.config.domain;
+        let reach = world.max_radius() + max_new_radius;
+        let bounds = bounds.filter(|_| !domain.periodic_x && !domain.periodic_y);
+        let index: Vec<u32> = match bounds {
+            Some((lo, hi)) => {
+                let (lo, hi) = (lo - Vec3::repeat(reach), hi + Vec3::repeat(reach));
+                (0..p.len() as u32)
+                    .filter(|&k| {
+                        let x = p.position[k as usize];
+                        (0..3).all(|a| x[a] >= lo[a] && x[a] <= hi[a])
+                    })
+                    .collect()
+            }
+            None => (0..p.len() as u32).collect(),
+        };
+        let positions: Vec<Vec3> = index.iter().map(|&k| p.position[k as usize]).collect();
+        let grid = CellGrid::build(domain, reach, &positions);
+        NearSource { grid, index, reach }
+    }
+}
+
 impl World {
-    /// True if a sphere at `centre` with `radius` overlaps no particle and no geometry at the
-    /// current time. O(particles) unless `grid` is given.
-    pub(super) fn is_free(&self, centre: Vec3, radius: f64, grid: Option<&CellGrid>) -> bool {
+    /// True if a sphere at `centre` with `radius` (lying inside the source's region) overlaps
+    /// no particle and no geometry at the current time.
+    pub(super) fn is_free(&self, centre: Vec3, radius: f64, near: &NearSource) -> bool {
         let p = &self.particles;
         let domain = &self.config.domain;
-        let clear_of = |k: usize| {
+        let mut clear = true;
+        near.grid.for_each_near(centre, near.reach, |g| {
+            let k = near.index[g as usize] as usize;
             let reach = radius + p.radius[k];
-            domain.minimum_image(p.position[k] - centre).norm_squared() >= reach * reach
-        };
-        let particles_clear = match grid {
-            Some(grid) => {
-                let mut clear = true;
-                grid.for_each_near(centre, radius + self.max_radius(), |k| {
-                    clear &= clear_of(k as usize);
-                });
-                clear
-            }
-            None => (0..p.len()).all(clear_of),
-        };
-        if !particles_clear {
+            clear &= domain.minimum_image(p.position[k] - centre).norm_squared() >= reach * reach;
+        });
+        if !clear {
             return false;
         }
         let mut contacts = Vec::new();
@@ -52,18 +81,17 @@ impl World {
         for (k, (source, material)) in sources.iter_mut().enumerate() {
             spawned.clear();
             let mut rng = self.rng.clone();
+            let (bounds, max_new_radius) = (source.region_bounds(), source.max_radius());
             // The overlap-test grid is built only if the source actually tries a spot.
-            let grid: std::cell::OnceCell<CellGrid> = std::cell::OnceCell::new();
+            let near: std::cell::OnceCell<NearSource> = std::cell::OnceCell::new();
             let report = source.spawn(
                 t,
                 dt,
                 &mut rng,
                 |centre, radius| {
-                    let grid = grid.get_or_init(|| {
-                        let size = 2.0 * self.max_radius().max(radius);
-                        CellGrid::build(&self.config.domain, size, &self.particles.position)
-                    });
-                    self.is_free(centre, radius, Some(grid))
+                    let near = near
+                        .get_or_init(|| NearSource::new(self, bounds, max_new_radius.max(radius)));
+                    self.is_free(centre, radius, near)
                 },
                 &mut spawned,
             );
