@@ -57,6 +57,18 @@ fn aor_writes_result_svg_and_csv() {
         assert_eq!(rows[1], rows[2]);
         let svg = std::fs::read_to_string(&chart).unwrap();
         assert_eq!(svg.matches("<circle").count(), 2);
+        // The table it printed is input too: the same points, the same chart.
+        let table = dir.path().join("points.csv");
+        std::fs::write(&table, stdout(&o)).unwrap();
+        let again = repose(&[
+            "ladder",
+            "--out",
+            chart.to_str().unwrap(),
+            table.to_str().unwrap(),
+        ]);
+        assert!(again.status.success(), "stderr: {}", stderr(&again));
+        assert_eq!(stdout(&again), stdout(&o));
+        assert_eq!(std::fs::read_to_string(&chart).unwrap(), svg);
     } else {
         assert_eq!(o.status.code(), Some(2));
         assert!(stderr(&o).contains("measured no heap"), "{}", stderr(&o));
@@ -66,6 +78,21 @@ fn aor_writes_result_svg_and_csv() {
         "--out",
         chart.to_str().unwrap(),
         out.join("final.csv").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(stderr(&o).trim().lines().count(), 1, "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("is not a ladder table"),
+        "{}",
+        stderr(&o)
+    );
+    let not_a_result = dir.path().join("other.json");
+    std::fs::write(&not_a_result, r#"{"x": 1}"#).unwrap();
+    let o = repose(&[
+        "ladder",
+        "--out",
+        chart.to_str().unwrap(),
+        not_a_result.to_str().unwrap(),
     ]);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(stderr(&o).trim().lines().count(), 1, "{}", stderr(&o));
@@ -218,4 +245,50 @@ fn aor_export_stl_writes_the_rig_in_the_run_frame() {
         "{lo:?} {hi:?}"
     );
     assert!((hi.x - 0.0316).abs() < 1e-3, "{hi:?}");
+}
+
+#[test]
+fn ladder_reads_the_table_it_prints() {
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("points.csv");
+    let text = "run,height_grains,angle_deg,came_to_rest\n\
+                \"0.3 kg, 2 mm\",21.3,40.37,true\n\
+                50 g #1,8.55,24.93,false\n";
+    std::fs::write(&table, text).unwrap();
+    let chart = dir.path().join("ladder.svg");
+    let o = repose(&[
+        "ladder",
+        "--out",
+        chart.to_str().unwrap(),
+        table.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    assert_eq!(stdout(&o), text);
+    let svg = std::fs::read_to_string(&chart).unwrap();
+    assert_eq!(svg.matches("<circle").count(), 2);
+    assert!(svg.contains("0.3 kg, 2 mm (40.4°)"), "{svg}");
+
+    // A bad value names the file and the row; exit status 2, one line.
+    for (bad, says) in [
+        (
+            "run,height_grains,angle_deg,came_to_rest\nx,1.0,steep,true\n",
+            "row 1",
+        ),
+        (
+            "run,height_grains,angle_deg,came_to_rest\nx,-1.0,30,true\n",
+            "row 1 (x)",
+        ),
+        ("run,angle_deg\nx,30\n", "is not a ladder table"),
+    ] {
+        std::fs::write(&table, bad).unwrap();
+        let o = repose(&[
+            "ladder",
+            "--out",
+            chart.to_str().unwrap(),
+            table.to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{bad}");
+        assert_eq!(stderr(&o).trim().lines().count(), 1, "{}", stderr(&o));
+        assert!(stderr(&o).contains(says), "{bad}: {}", stderr(&o));
+    }
 }
