@@ -171,19 +171,25 @@ fn paper_scale_presets_stand_on_the_paper_rig_with_room_for_the_heap() {
 }
 
 #[test]
-fn the_paper_scale_table_3_batch_is_table_3_at_the_table_2_levels() {
+fn the_table_3_batches_are_table_3_at_the_table_2_levels() {
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    for (file, expected) in [
+        ("paper_table3_paper_scale.json", "paper-scale"),
+        ("paper_table3_default.json", "default"),
+    ] {
+        table_3_batch(root, file, expected);
+    }
+}
+
+fn table_3_batch(root: &str, file: &str, expected: &str) {
     let batch: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(format!(
-            "{root}/examples/batches/paper_table3_paper_scale.json"
-        ))
-        .unwrap(),
+        &std::fs::read_to_string(format!("{root}/examples/batches/{file}")).unwrap(),
     )
     .unwrap();
     assert_eq!(batch["experiment"]["kind"], "aor");
     let preset = batch["experiment"]["preset"].as_str().unwrap();
     assert!(PRESETS.contains(&preset), "{preset}");
-    assert_eq!(preset, "paper-scale");
+    assert_eq!(preset, expected, "{file}");
     let factors = batch["factors"].as_array().unwrap();
     let table3 =
         std::fs::read_to_string(format!("{root}/examples/paper/plackett_burman_table3.csv"))
