@@ -39,12 +39,7 @@ pub fn run(args: &LadderArgs) -> Result<()> {
     table.write_record(HEADER.split(','))?;
     for run in &args.runs {
         for point in read_points(run)? {
-            table.serialize(Row {
-                run: point.label.clone(),
-                height_grains: point.height_grains,
-                angle_deg: point.angle_deg,
-                came_to_rest: point.came_to_rest,
-            })?;
+            table.serialize(&point)?;
             points.push(point);
         }
     }
@@ -75,16 +70,6 @@ fn read_points(run: &Path) -> Result<Vec<LadderPoint>> {
     Ok(vec![point])
 }
 
-/// One row of the table this command prints.
-#[derive(Debug, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Row {
-    run: String,
-    height_grains: f64,
-    angle_deg: f64,
-    came_to_rest: bool,
-}
-
 /// Points from a table as this command prints it (a header row, then one row per point).
 fn read_table(file: &Path) -> Result<Vec<LadderPoint>> {
     let not_a_table = || {
@@ -101,23 +86,20 @@ fn read_table(file: &Path) -> Result<Vec<LadderPoint>> {
         bail!(not_a_table());
     }
     let mut points = Vec::new();
-    for (k, row) in reader.deserialize::<Row>().enumerate() {
-        let row = row.with_context(|| format!("{}: row {}", not_a_table(), k + 1))?;
-        if !(row.height_grains.is_finite() && row.height_grains > 0.0 && row.angle_deg.is_finite())
+    for (k, row) in reader.deserialize::<LadderPoint>().enumerate() {
+        let point = row.with_context(|| format!("{}: row {}", not_a_table(), k + 1))?;
+        if !(point.height_grains.is_finite()
+            && point.height_grains > 0.0
+            && point.angle_deg.is_finite())
         {
             bail!(
                 "{}: row {} ({}): height_grains must be > 0 and angle_deg finite",
                 file.display(),
                 k + 1,
-                row.run
+                point.label
             );
         }
-        points.push(LadderPoint {
-            label: row.run,
-            height_grains: row.height_grains,
-            angle_deg: row.angle_deg,
-            came_to_rest: row.came_to_rest,
-        });
+        points.push(point);
     }
     Ok(points)
 }

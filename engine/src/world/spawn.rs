@@ -4,9 +4,9 @@ use super::*;
 
 /// The existing particles a grain inserted by one source could touch: those within `reach`
 /// of the source's region box (all of them in a periodic domain, where the minimum image can
-/// bring a far grain near), with a cell grid over just those. Built once per source and step, and only if the source
-/// tries a spot; a pour's factory region holds a few dozen of the world's grains, so the
-/// overlap tests no longer cost a grid over every grain.
+/// bring a far grain near), with a cell grid over just those. Built once per source and step,
+/// and only if the source tries a spot: a pour's factory region holds a few dozen of the
+/// world's grains, so the overlap tests no longer cost a grid over every grain.
 pub(super) struct NearSource {
     grid: CellGrid,
     /// World index of each particle the grid knows (the grid's indices point into this).
@@ -21,19 +21,14 @@ impl NearSource {
         let domain = &world.config.domain;
         let reach = world.max_radius() + max_new_radius;
         let bounds = bounds.filter(|_| !domain.periodic_x && !domain.periodic_y);
-        let index: Vec<u32> = match bounds {
-            Some((lo, hi)) => {
-                let (lo, hi) = (lo - Vec3::repeat(reach), hi + Vec3::repeat(reach));
-                (0..p.len() as u32)
-                    .filter(|&k| {
-                        let x = p.position[k as usize];
-                        (0..3).all(|a| x[a] >= lo[a] && x[a] <= hi[a])
-                    })
-                    .collect()
-            }
-            None => (0..p.len() as u32).collect(),
+        let near = |x: &Vec3| match bounds {
+            Some((lo, hi)) => (0..3).all(|a| x[a] >= lo[a] - reach && x[a] <= hi[a] + reach),
+            None => true,
         };
-        let positions: Vec<Vec3> = index.iter().map(|&k| p.position[k as usize]).collect();
+        let (index, positions): (Vec<u32>, Vec<Vec3>) = (p.position.iter().enumerate())
+            .filter(|(_, x)| near(x))
+            .map(|(k, x)| (k as u32, *x))
+            .unzip();
         let grid = CellGrid::build(domain, reach, &positions);
         NearSource { grid, index, reach }
     }

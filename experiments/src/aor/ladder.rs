@@ -8,10 +8,13 @@ use crate::svg::{escape, header, Frame, HEIGHT, ML, MT};
 
 use super::run::AorResult;
 
-/// One run of a ladder.
-#[derive(Debug, Clone, PartialEq)]
+/// One run of a ladder; serialized as a row of `repose ladder`'s table
+/// (`run,height_grains,angle_deg,came_to_rest`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LadderPoint {
     /// What the run is (a preset or a folder name), written next to its point.
+    #[serde(rename = "run")]
     pub label: String,
     /// The heap's height over the mean grain diameter.
     pub height_grains: f64,
