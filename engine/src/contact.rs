@@ -139,7 +139,7 @@ pub fn hertz_mindlin(
 /// contact pulled apart hold more friction the harder it is pulled); (2) with cohesion `none`
 /// the contact law is then unchanged bit for bit. The damping stays in the clamped part, so
 /// the dashpot itself never pulls and the restitution calibration is unchanged.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum CohesionLaw {
     None,
     /// F = k π a², a the radius of the circle where the undeformed bodies intersect

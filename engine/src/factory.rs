@@ -228,7 +228,7 @@ pub struct FactorySpec {
 }
 
 /// What one [`Factory::spawn`] call did.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct SpawnReport {
     /// Particles placed in this call.
     pub placed: usize,
@@ -511,7 +511,7 @@ impl ParticleList {
 }
 
 /// Any particle source (runtime state; configurations hold [`FactorySpec`]s and lists).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum ParticleSource {
     Factory(Factory),
     List(ParticleList),

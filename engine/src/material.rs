@@ -357,7 +357,7 @@ impl MaterialSet {
 }
 
 /// Everything the contact law needs that depends only on the two materials.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PairConstants {
     /// Equivalent Young's modulus E*: 1/E* = (1-νi²)/Ei + (1-νj²)/Ej.
     pub e_star: f64,
@@ -448,7 +448,7 @@ pub fn restitution_damping_ratio(restitution: f64) -> f64 {
 }
 
 /// Validated, index-addressed materials and the dense n×n pair table.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MaterialTable {
     materials: Vec<Material>,
     pairs: Vec<PairConstants>,

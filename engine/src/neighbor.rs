@@ -118,7 +118,7 @@ impl Domain {
 }
 
 /// What particle j receives from a pair (i, j) whose force was computed by particle i.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct PartnerShare {
     pub force: Vec3,
     pub torque: Vec3,
@@ -127,7 +127,7 @@ pub(crate) struct PartnerShare {
 }
 
 /// The half pair list with per-pair contact history.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct PairList {
     /// CSR offsets, length n + 1: the pairs whose lower index is i.
     pub first_pair: Vec<u32>,

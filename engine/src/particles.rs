@@ -5,6 +5,8 @@
 //! memory traffic per particle low and the arrays streamable. Particles are spheres: their
 //! orientation never enters the contact law, so it is not tracked.
 
+use serde::{Deserialize, Serialize};
+
 use crate::material::MaterialId;
 use crate::math::Vec3;
 
@@ -37,7 +39,7 @@ impl ParticleSpec {
 
 /// Structure-of-arrays particle storage. Index `k` refers to the same particle in every array;
 /// indices change when particles are removed or re-sorted, `id` never does.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct Particles {
     /// Persistent identity, unique within a world, assigned in creation order.
     pub id: Vec<u64>,
@@ -66,7 +68,7 @@ pub struct Particles {
 /// Contact history of one particle-geometry contact. The owning triangle changes as a sphere
 /// slides across a mesh, so the history is matched from step to step by geometry and by the
 /// nearest previous contact normal instead.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub(crate) struct WallHistory {
     pub geometry: u32,
     pub normal: Vec3,
@@ -186,7 +188,7 @@ impl Particles {
 /// then gets wide skins (few rebuilds) while the settled bed it falls on keeps thin ones (few
 /// listed pairs). Single precision is plenty (its rounding, ~1e-7 of the coordinates, is far
 /// below any skin), and the pair test uses the same rounded h as the move test.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub(crate) struct BuildMark {
     pub position: [f32; 3],
     pub half_skin: f32,

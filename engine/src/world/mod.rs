@@ -177,7 +177,7 @@ pub const MAX_PARTICLES: usize = PARTNER_INDEX as usize;
 pub struct GeometryId(pub u32);
 
 /// A rigid, kinematically driven triangle mesh.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Geometry {
     pub name: String,
     /// The mesh in its body frame.
@@ -225,8 +225,10 @@ enum AfterForces {
     Nothing,
 }
 
-/// A DEM simulation. Cloning copies the complete state (a checkpoint).
-#[derive(Debug, Clone)]
+/// A DEM simulation. Cloning copies the complete state, and so does serde: a world written with
+/// any lossless serde format (one that keeps every f64's bits) and read back continues bit for
+/// bit (tested), so a caller can checkpoint a long run to bytes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct World {
     config: WorldConfig,
     materials: MaterialTable,
@@ -270,7 +272,7 @@ pub struct ContactForce {
 
 /// Which code computes the particle-particle contacts. Both give bit-identical results
 /// (tested); the choice exists to test and measure that.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub enum KernelChoice {
     /// The lane kernel where the law allows it (no cohesion, CDT rolling), the scalar loop
     /// otherwise.

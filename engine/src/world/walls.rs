@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::*;
 
 /// The candidate triangles of every particle, built at a neighbour rebuild.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub(super) struct WallCandidates {
     /// CSR offsets, length n + 1 (empty before the first build).
     pub(super) first: Vec<u32>,
