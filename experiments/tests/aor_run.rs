@@ -5,7 +5,12 @@
 //! opt-level 3 there); the two monotonicity tests run two heaps each, on separate test threads.
 //! The engine is deterministic, so each comparison is exactly reproducible.
 
-use repose_experiments::aor::{run_aor, AorResult, AorSpec, Control, EndedBy, RunStatus};
+use std::time::Duration;
+
+use repose_experiments::aor::{
+    run_aor, run_aor_with_checkpoints, AorCheckpoint, AorError, AorResult, AorSpec,
+    CheckpointError, Checkpoints, Control, EndedBy, RunStatus,
+};
 use repose_experiments::Spec;
 
 fn run(spec: &AorSpec) -> AorResult {
@@ -279,4 +284,92 @@ fn an_epsd_heap_comes_to_rest_though_lone_grains_spin_on_their_spot() {
     assert!(translational < spec.settle.kinetic_energy_threshold);
     let angle = r.angle_deg.unwrap();
     assert!((5.0..60.0).contains(&angle), "angle {angle}");
+}
+
+#[test]
+fn a_run_resumed_from_a_checkpoint_ends_exactly_as_the_uninterrupted_run() {
+    // A short fast pour with checks from 0.3 s, cut by the time cap while it settles. The run is
+    // cancelled with 60 % of the mass in (grains in the funnel, in the stream and on the plate);
+    // the checkpoint it leaves is resumed and must end as the uninterrupted run does, to the
+    // last bit, after passing through the at-rest checks.
+    let mut spec = AorSpec::fast();
+    spec.settle.min_time = 0.1;
+    spec.settle.check_interval = 0.05;
+    spec.time_cap = 0.25;
+    let whole = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
+
+    let mut saved: Vec<Vec<u8>> = Vec::new();
+    let mut keep = |bytes: &[u8]| saved.push(bytes.to_vec());
+    let first = run_aor_with_checkpoints(
+        &spec,
+        &mut |p| {
+            if p.fraction > 0.3 {
+                Control::Cancel
+            } else {
+                Control::Continue
+            }
+        },
+        Checkpoints {
+            resume: None,
+            save: Some(&mut keep),
+            every: Duration::ZERO,
+        },
+    )
+    .unwrap();
+    assert_eq!(first.result.status, RunStatus::Cancelled);
+    assert!(
+        saved.len() > 2,
+        "a checkpoint every 200 steps and one at the cancel"
+    );
+    let last = AorCheckpoint::from_bytes(saved.last().unwrap()).unwrap();
+    assert_eq!(last.steps(), first.result.steps);
+    assert!(last.particles() > 0 && last.steps() < whole.result.steps);
+
+    // A checkpoint does not continue another experiment; the error names the field.
+    let mut other = spec.clone();
+    other.seed += 1;
+    let err = run_aor_with_checkpoints(
+        &other,
+        &mut |_| Control::Continue,
+        Checkpoints {
+            resume: Some(last.clone()),
+            ..Checkpoints::default()
+        },
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&err, AorError::Checkpoint(CheckpointError::OtherSpec { path, .. }) if path == "seed"),
+        "{err}"
+    );
+
+    let resumed = run_aor_with_checkpoints(
+        &spec,
+        &mut |_| Control::Continue,
+        Checkpoints {
+            resume: Some(last),
+            ..Checkpoints::default()
+        },
+    )
+    .unwrap();
+    let (a, b) = (&whole.result, &resumed.result);
+    assert_eq!(b.resumed_at_step, Some(first.result.steps));
+    assert_eq!(a.resumed_at_step, None);
+    assert_eq!(resumed.world.state_hash(), whole.world.state_hash());
+    assert!(
+        a.checks.len() >= 3,
+        "the tail runs through the checks: {a:?}"
+    );
+    let comparable = |r: &AorResult| {
+        let mut v = serde_json::to_value(r).unwrap();
+        let o = v.as_object_mut().unwrap();
+        o.remove("wall_time_s");
+        o.remove("resumed_at_step");
+        v
+    };
+    assert_eq!(comparable(b), comparable(a));
+    assert_eq!(
+        b.last_angle_deg.map(f64::to_bits),
+        a.last_angle_deg.map(f64::to_bits)
+    );
+    assert!(b.wall_time_s >= first.result.wall_time_s);
 }

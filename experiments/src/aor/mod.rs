@@ -35,6 +35,7 @@
 //! # Ok::<(), repose_experiments::aor::MeasureError>(())
 //! ```
 
+mod checkpoint;
 mod ladder;
 mod measure;
 mod picture;
@@ -42,6 +43,7 @@ mod rest;
 mod run;
 mod spec;
 
+pub use checkpoint::{AorCheckpoint, CheckpointError};
 pub use ladder::{ladder_svg, LadderPoint};
 pub use measure::{
     measure_angle_of_repose, AngleOfRepose, DirectionProfile, FlankFit, MeasureError,
@@ -50,8 +52,8 @@ pub use measure::{
 pub use picture::{side_view_svg, PictureOptions};
 pub use rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 pub use run::{
-    measure_heap, rig_meshes, run_aor, Amount, AorError, AorResult, AorRun, Control, EndedBy,
-    GrainBudget, Progress, RunStatus, SettleCheck,
+    measure_heap, rig_meshes, run_aor, run_aor_with_checkpoints, Amount, AorError, AorResult,
+    AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SettleCheck,
 };
 pub(crate) use spec::check_contacts;
 pub use spec::{

@@ -111,7 +111,7 @@ impl std::fmt::Display for NotYet {
 }
 
 /// The stop rule's verdict at a check.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum RestDecision {
     AtRest,
     NotYet(NotYet),

@@ -8,7 +8,7 @@
 //! in the funnel never count as part of the heap.
 
 use crate::Spec;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use repose_engine::distribution::SizeDistribution;
 use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
@@ -21,6 +21,7 @@ use repose_engine::neighbor::Domain;
 use repose_engine::world::{Geometry, World, WorldConfig};
 use serde::{Deserialize, Serialize};
 
+use super::checkpoint::{encode, AorCheckpoint, CheckpointError, LoopState};
 use super::measure::{measure_angle_of_repose, AngleOfRepose, MeasureError, MeasureSettings};
 use super::picture::{side_view_svg, PictureOptions};
 use super::rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
@@ -38,6 +39,9 @@ pub enum AorError {
     /// The engine rejected the world built from the spec (materials, mesh, factory).
     #[error("{part}: {reason}")]
     Build { part: &'static str, reason: String },
+    /// The checkpoint to resume from does not belong to this spec.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
 }
 
 fn build_error(part: &'static str, e: impl std::fmt::Display) -> AorError {
@@ -152,7 +156,11 @@ pub struct AorResult {
     pub insertion_end_s: Option<f64>,
     pub steps: u64,
     pub time_step_s: f64,
+    /// Wall-clock time of the whole run, s (summed over its segments if it was resumed).
     pub wall_time_s: f64,
+    /// The step the run was last resumed at from a checkpoint (none: it ran in one go).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resumed_at_step: Option<u64>,
     pub ended_by: EndedBy,
     /// `ended_by` is `at_rest`.
     pub came_to_rest: bool,
@@ -484,39 +492,96 @@ pub fn run_aor(
     spec: &AorSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<AorRun, AorError> {
+    run_aor_with_checkpoints(spec, progress, Checkpoints::default())
+}
+
+/// What receives a checkpoint's bytes ([`super::AorCheckpoint::from_bytes`] reads them back).
+pub type SaveCheckpoint<'a> = dyn FnMut(&[u8]) + 'a;
+
+/// Where a run starts and how it hands out checkpoints ([`run_aor_with_checkpoints`]).
+#[derive(Default)]
+pub struct Checkpoints<'a> {
+    /// Continue this saved run instead of starting afresh (it must be a run of the same spec).
+    pub resume: Option<AorCheckpoint>,
+    /// Called with a checkpoint's bytes every [`Self::every`] of wall-clock time, and once more
+    /// if the run is cancelled; none: no checkpoints. Keeping the bytes is the caller's
+    /// business (a failed write must not stop the run).
+    pub save: Option<&'a mut SaveCheckpoint<'a>>,
+    /// Wall-clock time between checkpoints (checked every few hundred steps).
+    pub every: Duration,
+}
+
+impl std::fmt::Debug for Checkpoints<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Checkpoints")
+            .field("resume_at_step", &self.resume.as_ref().map(|c| c.steps()))
+            .field("save", &self.save.is_some())
+            .field("every", &self.every)
+            .finish()
+    }
+}
+
+/// [`run_aor`], resumable: it may start from a checkpoint and hands out checkpoints as it goes.
+/// A resumed run ends exactly as the uninterrupted run would have (same steps, same angle to
+/// the last bit); only its `wall_time_s` (the sum over all segments) and `resumed_at_step`
+/// tell them apart.
+pub fn run_aor_with_checkpoints(
+    spec: &AorSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    mut checkpoints: Checkpoints<'_>,
+) -> Result<AorRun, AorError> {
     let started = Instant::now();
-    let Rig {
-        mut world,
-        heap_top,
-        ready_after,
-    } = build_rig(spec)?;
     let g = 9.81;
     let settings = rig_measure_settings(spec);
-
     let nominal_fill = spec.total_mass / spec.mass_rate;
-    let mut insertion_end: Option<f64> = None;
+    let (mut world, mut state, resumed_at_step) = match checkpoints.resume.take() {
+        Some(saved) => {
+            spec.validate()?;
+            saved.check_spec(spec)?;
+            let steps = saved.world.steps();
+            (saved.world, saved.state, Some(steps))
+        }
+        None => {
+            let Rig {
+                world,
+                heap_top,
+                ready_after,
+            } = build_rig(spec)?;
+            let state = LoopState {
+                heap_top,
+                ready_after,
+                insertion_end: None,
+                checks: Vec::new(),
+                decision: RestDecision::NotYet(NotYet::TooFewChecks),
+                next_check: f64::INFINITY,
+                deadline: nominal_fill + ready_after + spec.time_cap,
+                wall_time_s: 0.0,
+            };
+            (world, state, None)
+        }
+    };
+    let (heap_top, ready_after) = (state.heap_top, state.ready_after);
+    let spent_before = state.wall_time_s;
+    let wall_time = || spent_before + started.elapsed().as_secs_f64();
+    let mut last_save = Instant::now();
     let mut ended_by: Option<EndedBy> = None;
-    let mut checks: Vec<SettleCheck> = Vec::new();
-    let mut decision = RestDecision::NotYet(NotYet::TooFewChecks);
-    let mut next_check = f64::INFINITY;
-    let mut deadline = nominal_fill + ready_after + spec.time_cap;
     const REPORT_EVERY: u64 = 200;
 
     while ended_by.is_none() {
         world.step();
         let t = world.time();
-        if insertion_end.is_none() {
+        if state.insertion_end.is_none() {
             let (finished, _, _) = factory_state(&world);
             if finished {
-                insertion_end = Some(t);
+                state.insertion_end = Some(t);
                 let ready = t.max(ready_after);
-                next_check = ready + spec.settle.min_time;
-                deadline = ready + spec.time_cap;
+                state.next_check = ready + spec.settle.min_time;
+                state.deadline = ready + spec.time_cap;
             }
         }
-        let is_check = t >= next_check;
+        let is_check = t >= state.next_check;
         if world.steps() % REPORT_EVERY == 0 || is_check {
-            let (phase, fraction) = match insertion_end {
+            let (phase, fraction) = match state.insertion_end {
                 None => {
                     let (_, mass, _) = factory_state(&world);
                     ("filling", 0.5 * (mass / spec.total_mass).min(1.0))
@@ -530,7 +595,7 @@ pub fn run_aor(
                     };
                     (
                         phase,
-                        0.5 + 0.5 * ((t - end) / (deadline - end)).clamp(0.0, 1.0),
+                        0.5 + 0.5 * ((t - end) / (state.deadline - end)).clamp(0.0, 1.0),
                     )
                 }
             };
@@ -542,45 +607,63 @@ pub fn run_aor(
             });
             if control == Control::Cancel {
                 ended_by = Some(EndedBy::Cancelled);
+                // The state after this step is whole: keep it, so a cancelled run can go on.
+                if let Some(save) = checkpoints.save.as_mut() {
+                    state.wall_time_s = wall_time();
+                    save(&encode(spec, &state, &world));
+                }
                 break;
             }
         }
         if is_check {
-            next_check += spec.settle.check_interval;
+            state.next_check += spec.settle.check_interval;
             let ke = kinetic_energy_ratio(&world, g);
             let (positions, radii, _) = heap_region(&world, heap_top, spec);
             let angle = measure_angle_of_repose(&positions, &radii, &settings)
                 .ok()
                 .map(|m| m.angle_deg);
-            checks.push(SettleCheck {
+            state.checks.push(SettleCheck {
                 time: t,
                 kinetic_energy_ratio: ke,
                 angle_deg: angle,
                 on_base: positions.len() as u64,
             });
-            decision = rest_decision(&checks, &spec.settle);
-            if decision == RestDecision::AtRest {
+            state.decision = rest_decision(&state.checks, &spec.settle);
+            if state.decision == RestDecision::AtRest {
                 ended_by = Some(EndedBy::AtRest);
             }
             if ended_by.is_none() {
                 if let Some(cap) = spec.wall_time_cap {
-                    if started.elapsed().as_secs_f64() > cap {
+                    if wall_time() > cap {
                         ended_by = Some(EndedBy::WallTimeCap);
                     }
                 }
             }
         }
-        if ended_by.is_none() && t >= deadline {
+        if ended_by.is_none() && t >= state.deadline {
             ended_by = Some(EndedBy::TimeCap);
         }
         if ended_by.is_none() && world.steps() % REPORT_EVERY == 0 {
             if let Some(cap) = spec.wall_time_cap {
-                if started.elapsed().as_secs_f64() > cap {
+                if wall_time() > cap {
                     ended_by = Some(EndedBy::WallTimeCap);
+                }
+            }
+            if let Some(save) = checkpoints.save.as_mut() {
+                if last_save.elapsed() >= checkpoints.every {
+                    state.wall_time_s = wall_time();
+                    save(&encode(spec, &state, &world));
+                    last_save = Instant::now();
                 }
             }
         }
     }
+    let LoopState {
+        insertion_end,
+        checks,
+        decision,
+        ..
+    } = state;
     let ended_by = ended_by.expect("loop ends with a reason");
     let _ = progress(Progress {
         fraction: 1.0,
@@ -714,7 +797,8 @@ pub fn run_aor(
         insertion_end_s: insertion_end,
         steps: world.steps(),
         time_step_s: world.config().time_step,
-        wall_time_s: started.elapsed().as_secs_f64(),
+        wall_time_s: wall_time(),
+        resumed_at_step,
         ended_by,
         came_to_rest,
         rest,

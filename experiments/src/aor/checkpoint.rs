@@ -1,0 +1,259 @@
+//! A run saved mid-way ([`AorCheckpoint`]): the spec, the whole engine world and the run loop's
+//! state, as bytes the caller keeps wherever it likes (this crate does no I/O). A run resumed
+//! from a checkpoint ([`super::run_aor_with_checkpoints`]) continues bit for bit as if it had
+//! never stopped (tested): the world's serde form is its complete state and MessagePack keeps
+//! every f64's bits.
+//!
+//! Bytes: the magic line [`MAGIC`], the format number (u32, little endian), then the
+//! MessagePack of the release that wrote it, the spec, the loop state and the world. A
+//! checkpoint is read only by the release that wrote it: another build's engine would continue
+//! another trajectory.
+
+use repose_engine::world::World;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use super::rest::RestDecision;
+use super::run::SettleCheck;
+use super::spec::AorSpec;
+
+/// The first bytes of every checkpoint.
+pub const MAGIC: &[u8] = b"repose aor checkpoint\n";
+/// The layout after [`MAGIC`]; bumped when the loop state or the world's serde form changes.
+pub const FORMAT: u32 = 1;
+const RELEASE: &str = env!("CARGO_PKG_VERSION");
+
+/// Why bytes are not a checkpoint this run can continue from.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CheckpointError {
+    #[error(
+        "not an angle-of-repose checkpoint (the file does not start with the checkpoint header)"
+    )]
+    NotACheckpoint,
+    #[error("checkpoint format {found}; this build reads format {expected}")]
+    Format { found: u32, expected: u32 },
+    #[error("checkpoint written by release {found}; this build is {expected} and would continue another trajectory")]
+    Release { found: String, expected: String },
+    #[error("the checkpoint is damaged: {0}")]
+    Corrupt(String),
+    /// The checkpoint belongs to another experiment: `path` is the first spec field that differs.
+    #[error(
+        "the checkpoint was written for another spec: `{path}` is {saved} there and {given} here"
+    )]
+    OtherSpec {
+        path: String,
+        saved: String,
+        given: String,
+    },
+}
+
+/// The run loop's state between two steps: everything besides the world that decides what
+/// the loop does next.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(super) struct LoopState {
+    pub heap_top: f64,
+    pub ready_after: f64,
+    pub insertion_end: Option<f64>,
+    pub checks: Vec<SettleCheck>,
+    pub decision: RestDecision,
+    pub next_check: f64,
+    pub deadline: f64,
+    /// Wall-clock seconds spent by the run before this point (all earlier segments).
+    pub wall_time_s: f64,
+}
+
+#[derive(Serialize)]
+struct Written<'a> {
+    release: &'a str,
+    spec: &'a AorSpec,
+    state: &'a LoopState,
+    world: &'a World,
+}
+
+#[derive(Deserialize)]
+struct Read {
+    release: String,
+    spec: AorSpec,
+    state: LoopState,
+    world: World,
+}
+
+pub(super) fn encode(spec: &AorSpec, state: &LoopState, world: &World) -> Vec<u8> {
+    let mut bytes = MAGIC.to_vec();
+    bytes.extend_from_slice(&FORMAT.to_le_bytes());
+    let body = Written {
+        release: RELEASE,
+        spec,
+        state,
+        world,
+    };
+    rmp_serde::encode::write(&mut bytes, &body).expect("a run's state serialises");
+    bytes
+}
+
+/// A run saved between two steps.
+#[derive(Debug, Clone)]
+pub struct AorCheckpoint {
+    pub(super) spec: AorSpec,
+    pub(super) state: LoopState,
+    pub(super) world: World,
+}
+
+impl AorCheckpoint {
+    /// Reads the bytes a run handed to its checkpoint callback.
+    pub fn from_bytes(bytes: &[u8]) -> Result<AorCheckpoint, CheckpointError> {
+        let rest = bytes
+            .strip_prefix(MAGIC)
+            .ok_or(CheckpointError::NotACheckpoint)?;
+        let (format, body) = rest
+            .split_first_chunk::<4>()
+            .ok_or_else(|| CheckpointError::Corrupt("it ends inside its header".into()))?;
+        let found = u32::from_le_bytes(*format);
+        if found != FORMAT {
+            return Err(CheckpointError::Format {
+                found,
+                expected: FORMAT,
+            });
+        }
+        let read: Read =
+            rmp_serde::from_slice(body).map_err(|e| CheckpointError::Corrupt(e.to_string()))?;
+        if read.release != RELEASE {
+            return Err(CheckpointError::Release {
+                found: read.release,
+                expected: RELEASE.into(),
+            });
+        }
+        Ok(AorCheckpoint {
+            spec: read.spec,
+            state: read.state,
+            world: read.world,
+        })
+    }
+
+    /// The spec the run was started with.
+    pub fn spec(&self) -> &AorSpec {
+        &self.spec
+    }
+
+    /// Simulated time at the save, s.
+    pub fn simulated_time(&self) -> f64 {
+        self.world.time()
+    }
+
+    /// Steps done at the save.
+    pub fn steps(&self) -> u64 {
+        self.world.steps()
+    }
+
+    /// Grains in the world at the save.
+    pub fn particles(&self) -> usize {
+        self.world.particles().len()
+    }
+
+    /// Wall-clock seconds the run had spent when it was saved.
+    pub fn wall_time_s(&self) -> f64 {
+        self.state.wall_time_s
+    }
+
+    /// Ok if this checkpoint continues a run of `spec`; else the first field that differs.
+    pub fn check_spec(&self, spec: &AorSpec) -> Result<(), CheckpointError> {
+        if &self.spec == spec {
+            return Ok(());
+        }
+        let saved = serde_json::to_value(&self.spec).expect("specs serialise");
+        let given = serde_json::to_value(spec).expect("specs serialise");
+        let (path, saved, given) = first_difference(&saved, &given, String::new())
+            .unwrap_or_else(|| ("(spec)".into(), "one value".into(), "another".into()));
+        Err(CheckpointError::OtherSpec { path, saved, given })
+    }
+}
+
+/// The first dotted path where `a` and `b` differ, with both values as JSON text.
+fn first_difference(a: &Value, b: &Value, path: String) -> Option<(String, String, String)> {
+    let join = |key: &str| {
+        if path.is_empty() {
+            key.to_owned()
+        } else {
+            format!("{path}.{key}")
+        }
+    };
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            keys.into_iter().find_map(|k| match (x.get(k), y.get(k)) {
+                (Some(u), Some(v)) => first_difference(u, v, join(k)),
+                (u, v) => Some((join(k), show(u), show(v))),
+            })
+        }
+        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => x
+            .iter()
+            .zip(y)
+            .enumerate()
+            .find_map(|(i, (u, v))| first_difference(u, v, join(&i.to_string()))),
+        _ if a == b => None,
+        _ => Some((
+            if path.is_empty() {
+                "(spec)".into()
+            } else {
+                path
+            },
+            a.to_string(),
+            b.to_string(),
+        )),
+    }
+}
+
+fn show(v: Option<&Value>) -> String {
+    v.map_or_else(|| "absent".into(), Value::to_string)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_differing_field_is_named_with_both_values() {
+        let a = serde_json::json!({"seed": 1, "funnel": {"outlet_diameter": 0.017}, "x": [1, 2]});
+        let b = serde_json::json!({"seed": 1, "funnel": {"outlet_diameter": 0.02}, "x": [1, 2]});
+        assert_eq!(
+            first_difference(&a, &b, String::new()),
+            Some((
+                "funnel.outlet_diameter".into(),
+                "0.017".into(),
+                "0.02".into()
+            ))
+        );
+        let c = serde_json::json!({"seed": 1, "funnel": {"outlet_diameter": 0.017}, "x": [1, 3]});
+        assert_eq!(
+            first_difference(&a, &c, String::new()),
+            Some(("x.1".into(), "2".into(), "3".into()))
+        );
+        assert_eq!(first_difference(&a, &a, String::new()), None);
+    }
+
+    #[test]
+    fn bytes_that_are_not_a_checkpoint_say_so() {
+        assert_eq!(
+            AorCheckpoint::from_bytes(b"{\"status\":\"ok\"}").unwrap_err(),
+            CheckpointError::NotACheckpoint
+        );
+        let mut other_format = MAGIC.to_vec();
+        other_format.extend_from_slice(&(FORMAT + 1).to_le_bytes());
+        assert_eq!(
+            AorCheckpoint::from_bytes(&other_format).unwrap_err(),
+            CheckpointError::Format {
+                found: FORMAT + 1,
+                expected: FORMAT
+            }
+        );
+        let mut truncated = MAGIC.to_vec();
+        truncated.extend_from_slice(&FORMAT.to_le_bytes());
+        truncated.extend_from_slice(&[0x93, 0x01]);
+        assert!(matches!(
+            AorCheckpoint::from_bytes(&truncated),
+            Err(CheckpointError::Corrupt(_))
+        ));
+    }
+}
