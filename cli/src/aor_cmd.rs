@@ -14,11 +14,13 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{
-    measure_heap, rig_meshes, run_aor, side_view_svg, AorSpec, Control, PictureOptions,
+    measure_heap, rig_meshes, run_aor_with_checkpoints, side_view_svg, AorCheckpoint, AorSpec,
+    Checkpoints, Control, PictureOptions, SaveCheckpoint,
 };
 use repose_experiments::Spec;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 #[derive(Debug, Args)]
 pub struct AorArgs {
@@ -26,8 +28,8 @@ pub struct AorArgs {
     #[arg(long)]
     pub spec: Option<PathBuf>,
     /// Start from a preset: `default` (2 mm grains, 50 g, a few minutes), `fast` (2.5 mm
-    /// grains, 30 g, for tests), `paper-scale` (the paper's 0.3 kg of 2 mm grains, ~12 min on 2
-    /// threads), `fine` (0.3 kg of 1 mm grains, hours), the ladder members `size-2.5mm`,
+    /// grains, 30 g, for tests), `paper-scale` (the paper's 0.3 kg of 2 mm grains, ~7 min on 2
+    /// threads), `fine` (0.3 kg of 1 mm grains, hours: use --checkpoint), the ladder members `size-2.5mm`,
     /// `size-1.5mm`, `mass-100g`, `paper-scale-sieve` (docs/aor.md). With --spec, the fields
     /// the file does not give.
     #[arg(long, default_value = "default")]
@@ -56,9 +58,27 @@ pub struct AorArgs {
     /// metres, the run's frame) into DIR, e.g. for a peer engine.
     #[arg(long, value_name = "DIR", conflicts_with = "print_spec")]
     pub export_stl: Option<PathBuf>,
+    /// Keep the run's checkpoint in FILE (the whole state, replaced atomically every
+    /// --checkpoint-every seconds): a run killed or cut short goes on from there when the same
+    /// command is run again, and ends exactly as it would have without the stop. A FILE of
+    /// another spec is refused (the error names the field). Deleted once the run has finished
+    /// and its results are written.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["print_spec", "measure", "export_stl"])]
+    pub checkpoint: Option<PathBuf>,
+    /// Wall-clock seconds between two checkpoints.
+    #[arg(long, value_name = "SECONDS", default_value_t = 300.0, requires = "checkpoint",
+          value_parser = non_negative_seconds)]
+    pub checkpoint_every: f64,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+}
+
+fn non_negative_seconds(text: &str) -> std::result::Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if s.is_finite() && s >= 0.0 => Ok(s),
+        _ => Err(format!("expected a number of seconds >= 0, got `{text}`")),
+    }
 }
 
 fn effective_spec(args: &AorArgs) -> Result<AorSpec> {
@@ -89,16 +109,41 @@ pub fn run(args: &AorArgs) -> Result<()> {
     let out = args.out.as_ref().expect("clap requires --out");
     crate::local_run::create_dirs([out.as_path()])?;
     let pool = crate::local_run::thread_pool(args.threads)?;
+    let resume = match &args.checkpoint {
+        Some(file) => read_checkpoint(file, &spec)?,
+        None => None,
+    };
     let bar = crate::local_run::progress_bar(args.quiet, " {msg}");
     let run = pool.install(|| {
-        run_aor(&spec, &mut |p| {
-            bar.set_position((p.fraction * 1000.0) as u64);
-            bar.set_message(format!(
-                "{} t={:.3} s, {} grains",
-                p.phase, p.time, p.particles
-            ));
-            Control::Continue
-        })
+        let mut keep = |bytes: &[u8]| {
+            if let Some(file) = &args.checkpoint {
+                // A checkpoint that cannot be written (full disk) costs only the restart
+                // point: the last one written stays whole, and the run goes on.
+                if let Err(e) = write_atomically(file, bytes) {
+                    bar.suspend(|| eprintln!("warning: checkpoint not kept: {e:#}"));
+                }
+            }
+        };
+        let checkpoints = Checkpoints {
+            resume,
+            save: args
+                .checkpoint
+                .is_some()
+                .then_some(&mut keep as &mut SaveCheckpoint),
+            every: Duration::from_secs_f64(args.checkpoint_every),
+        };
+        run_aor_with_checkpoints(
+            &spec,
+            &mut |p| {
+                bar.set_position((p.fraction * 1000.0) as u64);
+                bar.set_message(format!(
+                    "{} t={:.3} s, {} grains",
+                    p.phase, p.time, p.particles
+                ));
+                Control::Continue
+            },
+            checkpoints,
+        )
     })?;
     bar.finish_and_clear();
 
@@ -110,6 +155,14 @@ pub fn run(args: &AorArgs) -> Result<()> {
     write_file(&out.join("final.csv"), |w| {
         write_particles_csv(w, run.world.particles())
     })?;
+    if let Some(file) = &args.checkpoint {
+        // The results are written: the checkpoint would only replay the run's tail.
+        if let Err(e) = std::fs::remove_file(file) {
+            if e.kind() != std::io::ErrorKind::NotFound {
+                eprintln!("warning: cannot delete {}: {e}", file.display());
+            }
+        }
+    }
     println!("{json}");
     if let Some(rest) = &run.result.rest {
         let verdict = if run.result.came_to_rest {
@@ -119,6 +172,50 @@ pub fn run(args: &AorArgs) -> Result<()> {
         };
         eprintln!("{verdict} ({:?}): {rest}", run.result.ended_by);
     }
+    Ok(())
+}
+
+/// The checkpoint in `file` if there is one (it must be a run of `spec`).
+fn read_checkpoint(file: &Path, spec: &AorSpec) -> Result<Option<AorCheckpoint>> {
+    let bytes = match std::fs::read(file) {
+        Ok(bytes) => bytes,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", file.display())),
+    };
+    let saved = AorCheckpoint::from_bytes(&bytes)
+        .and_then(|c| c.check_spec(spec).map(|()| c))
+        .with_context(|| {
+            format!(
+                "cannot continue from {} (delete it to start afresh)",
+                file.display()
+            )
+        })?;
+    eprintln!(
+        "continuing from {}: step {}, t = {:.3} s, {} grains, {:.0} s of wall time so far",
+        file.display(),
+        saved.steps(),
+        saved.simulated_time(),
+        saved.particles(),
+        saved.wall_time_s()
+    );
+    Ok(Some(saved))
+}
+
+/// Replaces `file` by `bytes` so that a reader (or a crash) sees the old file or the new one,
+/// never half of one: a temporary file beside it, synced, renamed over it.
+fn write_atomically(file: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = match file.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut temp = tempfile::NamedTempFile::new_in(dir)
+        .with_context(|| format!("cannot create a file in {}", dir.display()))?;
+    temp.write_all(bytes)
+        .and_then(|()| temp.as_file().sync_all())
+        .with_context(|| format!("cannot write a checkpoint in {}", dir.display()))?;
+    temp.persist(file)
+        .with_context(|| format!("cannot replace {}", file.display()))?;
     Ok(())
 }
 

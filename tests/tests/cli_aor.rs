@@ -292,3 +292,127 @@ fn ladder_reads_the_table_it_prints() {
         assert!(stderr(&o).contains(says), "{bad}: {}", stderr(&o));
     }
 }
+
+#[test]
+fn aor_killed_mid_run_goes_on_from_its_checkpoint_and_ends_as_if_never_stopped() {
+    // A short fast pour, cut by the time cap while it settles. One copy runs through; another
+    // keeps a checkpoint, is killed (SIGKILL) once it has one, and is run again with the same
+    // command: it must continue from the checkpoint and write the same result to the last bit.
+    let dir = tempfile::tempdir().unwrap();
+    let args = |out: &std::path::Path| -> Vec<String> {
+        [
+            "aor",
+            "--preset",
+            "fast",
+            "--set",
+            "settle.min_time=0.1",
+            "--set",
+            "settle.check_interval=0.05",
+            "--set",
+            "time_cap=0.25",
+            "--threads",
+            "1",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .map(str::to_owned)
+        .to_vec()
+    };
+    let whole = dir.path().join("whole");
+    let o = repose(&args(&whole).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+
+    let cut = dir.path().join("cut");
+    let checkpoint = dir.path().join("state/aor.checkpoint");
+    let mut with_checkpoint = args(&cut);
+    with_checkpoint.extend(
+        [
+            "--checkpoint",
+            checkpoint.to_str().unwrap(),
+            "--checkpoint-every",
+            "0",
+        ]
+        .map(str::to_owned),
+    );
+    let mut child = std::process::Command::new(common::repose_bin())
+        .args(&with_checkpoint)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while !checkpoint.exists() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before it kept a checkpoint"
+        );
+        assert!(
+            started.elapsed().as_secs() < 120,
+            "no checkpoint after 2 min"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the run must be killed before it ends"
+    );
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!cut.join("result.json").exists());
+    let kept = std::fs::read(&checkpoint).unwrap();
+
+    // A checkpoint is refused by another spec (the error names the field) and garbage is
+    // refused as garbage; neither is overwritten.
+    let other = dir.path().join("other.checkpoint");
+    std::fs::write(&other, &kept).unwrap();
+    let mut other_args = args(&dir.path().join("other"));
+    other_args
+        .extend(["--set", "seed=2", "--checkpoint", other.to_str().unwrap()].map(str::to_owned));
+    let o = repose(&other_args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("`seed`"), "stderr: {}", stderr(&o));
+    assert_eq!(std::fs::read(&other).unwrap(), kept);
+    std::fs::write(&other, b"{}").unwrap();
+    let o = repose(&other_args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("not an angle-of-repose checkpoint"),
+        "stderr: {}",
+        stderr(&o)
+    );
+
+    let o = repose(
+        &with_checkpoint
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    assert!(
+        stderr(&o).contains("continuing from"),
+        "stderr: {}",
+        stderr(&o)
+    );
+    assert!(
+        !checkpoint.exists(),
+        "a finished run deletes its checkpoint"
+    );
+    let read = |dir: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("result.json")).unwrap()).unwrap()
+    };
+    let (mut a, mut b) = (read(&whole), read(&cut));
+    assert!(b["resumed_at_step"].as_u64().unwrap() > 0);
+    assert!(a.get("resumed_at_step").is_none());
+    for r in [&mut a, &mut b] {
+        let o = r.as_object_mut().unwrap();
+        o.remove("wall_time_s");
+        o.remove("resumed_at_step");
+    }
+    assert_eq!(a, b);
+    assert_eq!(
+        std::fs::read_to_string(whole.join("final.csv")).unwrap(),
+        std::fs::read_to_string(cut.join("final.csv")).unwrap()
+    );
+}

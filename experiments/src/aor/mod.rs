@@ -53,7 +53,8 @@ pub use picture::{side_view_svg, PictureOptions};
 pub use rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 pub use run::{
     measure_heap, rig_meshes, run_aor, run_aor_with_checkpoints, Amount, AorError, AorResult,
-    AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SettleCheck,
+    AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SaveCheckpoint,
+    SettleCheck,
 };
 pub(crate) use spec::check_contacts;
 pub use spec::{
