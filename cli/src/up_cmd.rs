@@ -56,6 +56,14 @@ pub struct UpArgs {
     /// the database, `<db>.beds/`, created when the first bed is built).
     #[arg(long, value_name = "DIR")]
     pub bed_cache: Option<PathBuf>,
+    /// Checkpoints of long runs: a run cut by a crash, a kill or Ctrl-C goes on from its last
+    /// checkpoint when `repose up` is started again on the same database (default: next to the
+    /// database, `<db>.checkpoints/`).
+    #[arg(long, value_name = "DIR")]
+    pub checkpoints: Option<PathBuf>,
+    /// Wall-clock seconds between two checkpoints of a run.
+    #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
+    pub checkpoint_every: f64,
 }
 
 /// Validated settings.
@@ -70,6 +78,8 @@ struct UpConfig {
     artifacts: Option<PathBuf>,
     tokens_file: PathBuf,
     bed_cache: PathBuf,
+    checkpoints: PathBuf,
+    checkpoint_every: Duration,
 }
 
 fn config(args: &UpArgs) -> Result<UpConfig> {
@@ -116,7 +126,14 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         name.push(".beds");
         PathBuf::from(name)
     });
+    let checkpoints = args.checkpoints.clone().unwrap_or_else(|| {
+        let mut name = args.db.as_os_str().to_owned();
+        name.push(".checkpoints");
+        PathBuf::from(name)
+    });
     Ok(UpConfig {
+        checkpoints,
+        checkpoint_every: crate::worker_cmd::checkpoint_interval(args.checkpoint_every)?,
         bed_cache,
         server,
         workers: args.workers,
@@ -161,6 +178,8 @@ async fn up(config: UpConfig) -> Result<()> {
         worker.threads = config.threads;
         worker.artifacts_dir = config.artifacts.clone();
         worker.bed_cache = Some(config.bed_cache.clone());
+        worker.checkpoint_dir = Some(config.checkpoints.clone());
+        worker.checkpoint_every = config.checkpoint_every;
         let mut stopped = workers_stopped.clone();
         workers.push(tokio::spawn(repose_worker::run(worker, async move {
             let _ = stopped.wait_for(|s| *s).await;

@@ -31,6 +31,19 @@ pub struct WorkerArgs {
     /// (may be shared by several workers on one machine).
     #[arg(long, env = "REPOSE_BED_CACHE", value_name = "DIR")]
     pub bed_cache: Option<PathBuf>,
+    /// Keep checkpoints of long runs (angle of repose) under DIR: a run stopped by a crash, a
+    /// kill or a shutdown goes on from its last checkpoint when its job comes back to a worker
+    /// using DIR (may be shared by several workers on one machine). Default: runs start over.
+    #[arg(long, env = "REPOSE_CHECKPOINTS", value_name = "DIR")]
+    pub checkpoint_dir: Option<PathBuf>,
+    /// Wall-clock seconds between two checkpoints of a run.
+    #[arg(
+        long,
+        env = "REPOSE_CHECKPOINT_EVERY",
+        value_name = "SECONDS",
+        default_value_t = 300.0
+    )]
+    pub checkpoint_every: f64,
     /// Exit (status 0) once no job was available for SECONDS, e.g. so a batch-scheduler task
     /// ends when the queue is empty instead of holding its allocation. Default: wait forever.
     #[arg(long, env = "REPOSE_EXIT_WHEN_IDLE", value_name = "SECONDS")]
@@ -59,6 +72,7 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
         Some(s) if s.is_finite() && s > 0.0 && s <= MAX_IDLE_S => Some(Duration::from_secs_f64(s)),
         Some(s) => bail!("--exit-when-idle must be between 0 and {MAX_IDLE_S} seconds, got {s}"),
     };
+    let checkpoint_every = checkpoint_interval(args.checkpoint_every)?;
     let mut config = WorkerConfig::new(args.server.clone());
     config.exit_when_idle = exit_when_idle;
     config.token = args.token.clone();
@@ -66,7 +80,18 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
     config.threads = threads;
     config.artifacts_dir = args.artifacts.clone();
     config.bed_cache = args.bed_cache.clone();
+    config.checkpoint_dir = args.checkpoint_dir.clone();
+    config.checkpoint_every = checkpoint_every;
     Ok(config)
+}
+
+/// `--checkpoint-every`: whole seconds or fractions, at most a day.
+pub(crate) fn checkpoint_interval(seconds: f64) -> Result<Duration> {
+    if seconds.is_finite() && (0.0..=86_400.0).contains(&seconds) {
+        Ok(Duration::from_secs_f64(seconds))
+    } else {
+        bail!("--checkpoint-every must be between 0 and 86400 seconds, got {seconds}")
+    }
 }
 
 pub fn run_worker(args: &WorkerArgs) -> Result<()> {

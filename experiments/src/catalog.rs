@@ -7,11 +7,14 @@
 
 use crate::Spec;
 use std::collections::BTreeMap;
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::aor::{run_aor, AorSpec, RunStatus};
+use crate::aor::{
+    checkpoint_key, run_aor_with_checkpoints, AorCheckpoint, AorSpec, Checkpoints, RunStatus,
+};
 use crate::drill::{
     bed_key, build_bed, run_drill_on_bed, DrillError, DrillSpec, DrillStatus, SettledBed,
 };
@@ -41,6 +44,36 @@ impl BedStore for NoBedStore {
         None
     }
     fn put(&mut self, _bed: &SettledBed) {}
+}
+
+/// Checkpoints of long runs kept between attempts: a worker keeps them on disk, so a run whose
+/// worker was killed or stopped (and whose job comes back to a worker sharing the store) goes
+/// on from its last checkpoint instead of starting over. Only angle-of-repose runs checkpoint.
+pub trait CheckpointStore {
+    /// The bytes kept under `key`, if any (bytes that are not a checkpoint of the run are
+    /// ignored by the run).
+    fn get(&mut self, key: &str) -> Option<Vec<u8>>;
+    /// Keeps `bytes` under `key`, replacing what was there; failing must not fail the run.
+    fn put(&mut self, key: &str, bytes: &[u8]);
+    /// Forgets `key` (the run has finished).
+    fn remove(&mut self, key: &str);
+    /// Wall-clock time between two checkpoints of a run.
+    fn every(&self) -> Duration;
+}
+
+/// No store: runs start from the beginning and keep nothing.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoCheckpoints;
+
+impl CheckpointStore for NoCheckpoints {
+    fn get(&mut self, _key: &str) -> Option<Vec<u8>> {
+        None
+    }
+    fn put(&mut self, _key: &str, _bytes: &[u8]) {}
+    fn remove(&mut self, _key: &str) {}
+    fn every(&self) -> Duration {
+        Duration::MAX
+    }
 }
 
 /// An experiment kind, parsed once from its name ([`Kind::parse`]) and dispatched by `match`.
@@ -290,15 +323,47 @@ pub fn run_experiment_with_beds(
     progress: &mut dyn FnMut(f64) -> Control,
     beds: &mut dyn BedStore,
 ) -> Result<Outcome, ExperimentError> {
+    run_experiment_with_stores(kind, spec, seed, progress, beds, &mut NoCheckpoints)
+}
+
+/// [`run_experiment_with_beds`], with angle-of-repose runs continued from and checkpointed to
+/// `checkpoints` (under [`checkpoint_key`]). The outcome is the same, bit for bit, whether the
+/// run went through in one go or was continued (`details.resumed_at_step` says which); a run
+/// that finishes (in any state but cancelled) removes its checkpoint.
+pub fn run_experiment_with_stores(
+    kind: &str,
+    spec: &Value,
+    seed: u64,
+    progress: &mut dyn FnMut(f64) -> Control,
+    beds: &mut dyn BedStore,
+    checkpoints: &mut dyn CheckpointStore,
+) -> Result<Outcome, ExperimentError> {
     match ExperimentSpec::parse(Kind::parse(kind)?, spec)? {
         ExperimentSpec::Aor(mut spec) => {
             spec.seed = seed;
-            let run = run_aor(&spec, &mut |p| progress(p.fraction)).map_err(|e| {
-                ExperimentError::InvalidSpec {
-                    path: None,
-                    message: e.to_string(),
-                }
+            let key = checkpoint_key(&spec);
+            let resume = checkpoints
+                .get(&key)
+                .and_then(|bytes| AorCheckpoint::from_bytes(&bytes).ok())
+                .filter(|saved| saved.check_spec(&spec).is_ok());
+            let every = checkpoints.every();
+            let mut keep = |bytes: &[u8]| checkpoints.put(&key, bytes);
+            let run = run_aor_with_checkpoints(
+                &spec,
+                &mut |p| progress(p.fraction),
+                Checkpoints {
+                    resume,
+                    save: Some(&mut keep),
+                    every,
+                },
+            )
+            .map_err(|e| ExperimentError::InvalidSpec {
+                path: None,
+                message: e.to_string(),
             })?;
+            if run.result.status != RunStatus::Cancelled {
+                checkpoints.remove(&key);
+            }
             let details = serde_json::to_value(&run.result).expect("AorResult serialises");
             // A heap still creeping when the time cap ends the run (constant-torque rolling
             // friction never quite stops) is measured as it stands and flagged

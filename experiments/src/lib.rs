@@ -17,3 +17,13 @@ pub use spec_path::{Spec, SpecError};
 
 /// Version of the DEM engine these experiments run on (recorded with results).
 pub use repose_engine::VERSION as ENGINE_VERSION;
+
+/// 64-bit FNV-1a of `bytes`: the cache and checkpoint keys' hash (stable across builds).
+pub(crate) fn fnv1a(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}

@@ -157,6 +157,117 @@ fn a_worker_killed_mid_job_is_re_leased_and_the_run_has_exactly_one_result() {
 }
 
 #[test]
+fn a_worker_killed_mid_aor_run_leaves_a_checkpoint_the_next_worker_goes_on_from() {
+    // One fast angle-of-repose run, cut by the time cap while it settles. The first worker
+    // keeps a checkpoint every 200 steps and is killed (SIGKILL) once it has one; the job's
+    // lease expires and a second worker sharing the checkpoint directory continues the run
+    // from there. Its result is the uninterrupted run's (`repose aor` on the same spec).
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 2.0);
+    let checkpoints = dir.path().join("checkpoints");
+    let worker_args = [
+        "--checkpoint-dir",
+        checkpoints.to_str().unwrap(),
+        "--checkpoint-every",
+        "0",
+    ];
+    let batch = service.submit(&json!({
+        "name": "one checkpointed heap",
+        "experiment": {"kind": "aor", "preset": "fast", "spec": {
+            "total_mass": 0.02, "time_cap": 0.25,
+            "settle": {"min_time": 0.1, "check_interval": 0.05}}},
+        "factors": [{"name": "mu_r", "path": "soil_soil.rolling_friction", "low": 0.05, "high": 0.1}],
+        "design": {"type": "explicit", "points": [[0.08]]},
+        "response": "angle_deg",
+        "model": "none",
+        "seed": 3
+    }));
+    let mut doomed = service.start_worker("doomed", &worker_args);
+    let kept = || -> usize {
+        std::fs::read_dir(&checkpoints).map_or(0, |d| {
+            d.filter_map(Result::ok)
+                .filter(|e| e.path().extension().is_some_and(|x| x == "checkpoint"))
+                .count()
+        })
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while kept() == 0 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no checkpoint after 2 min"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let status = service.get(&format!("/v1/batches/{batch}"));
+    assert_eq!(status["counts"]["running"], 1, "killed mid-run: {status}");
+    doomed.kill();
+
+    let survivor = service.start_worker("survivor", &worker_args);
+    let status = service.wait_finished(&batch, Duration::from_secs(300));
+    assert_eq!(status["state"], "completed", "{status}");
+    let runs = runs(&service, &batch);
+    assert_eq!(runs[0]["attempts"], 2, "{runs:?}");
+    assert!(
+        survivor
+            .log_text()
+            .contains("found a checkpoint of this run"),
+        "{}",
+        survivor.log_text()
+    );
+    assert_eq!(kept(), 0, "the finished run's checkpoint is deleted");
+
+    let out = dir.path().join("reference");
+    let seed = runs[0]["seed"].as_u64().unwrap().to_string();
+    let o = repose(&[
+        "aor",
+        "--preset",
+        "fast",
+        "--set",
+        "total_mass=0.02",
+        "--set",
+        "time_cap=0.25",
+        "--set",
+        "settle.min_time=0.1",
+        "--set",
+        "settle.check_interval=0.05",
+        "--set",
+        "soil_soil.rolling_friction=0.08",
+        "--set",
+        &format!("seed={seed}"),
+        "--threads",
+        "1",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let reference: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("result.json")).unwrap()).unwrap();
+    let metrics = &runs[0]["metrics"];
+    for (metric, field) in [
+        ("simulated_time_s", "simulated_time_s"),
+        ("grains_inserted", "/grains/inserted/count"),
+        ("angle_deg", "last_angle_deg"),
+    ] {
+        let expected = if field.starts_with('/') {
+            reference.pointer(field)
+        } else {
+            reference.get(field)
+        }
+        .and_then(Value::as_f64)
+        .unwrap_or_else(|| panic!("{field} in {reference}"));
+        let got = metrics[metric]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{metric} in {metrics}"));
+        assert!(
+            (got - expected).abs() <= 1e-12 * expected.abs(),
+            "{metric}: resumed {got}, uninterrupted {expected}"
+        );
+    }
+}
+
+#[test]
 fn the_server_killed_mid_batch_restarts_and_nothing_is_lost() {
     let dir = tempfile::tempdir().unwrap();
     let mut service = Service::start(dir.path(), 5.0);

@@ -32,15 +32,19 @@ use std::time::{Duration, Instant};
 
 use rand::Rng;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
-use repose_experiments::catalog::{run_experiment_with_beds, ExperimentError, Outcome};
+use repose_experiments::catalog::{
+    run_experiment_with_stores, CheckpointStore, ExperimentError, NoCheckpoints, Outcome,
+};
 use repose_experiments::progress::Control;
 use tokio::sync::watch;
 use uuid::Uuid;
 
 mod beds;
+mod checkpoints;
 mod client;
 
 pub use beds::FileBedStore;
+pub use checkpoints::FileCheckpointStore;
 pub use client::{CallError, Client};
 
 /// Worker settings; the command line fills this from its flags.
@@ -64,6 +68,12 @@ pub struct WorkerConfig {
     pub artifacts_dir: Option<PathBuf>,
     /// Directory of settled drilling beds reused across runs; none: every run builds its bed.
     pub bed_cache: Option<PathBuf>,
+    /// Directory of checkpoints of long runs (angle of repose): a run stopped by a crash, a
+    /// kill or a shutdown goes on from its last checkpoint when its job comes back to a worker
+    /// using this directory; none: runs start over.
+    pub checkpoint_dir: Option<PathBuf>,
+    /// Wall-clock time between two checkpoints of a run.
+    pub checkpoint_every: Duration,
     /// Stop (like a shutdown, with nothing to release) once no slot had a job for this long;
     /// none: wait for jobs forever.
     pub exit_when_idle: Option<Duration>,
@@ -85,6 +95,8 @@ impl WorkerConfig {
             max_backoff: Duration::from_secs(30),
             artifacts_dir: None,
             bed_cache: None,
+            checkpoint_dir: None,
+            checkpoint_every: Duration::from_secs(300),
             exit_when_idle: None,
             version: repose_api::version::RELEASE.to_owned(),
         }
@@ -385,11 +397,13 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
         let signals = signals.clone();
         let threads = context.config.threads;
         let (kind, spec, seed) = (job.kind.clone(), job.spec.clone(), job.seed);
-        let bed_cache = context.config.bed_cache.clone();
-        tokio::task::spawn_blocking(move || {
-            simulate(&kind, &spec, seed, threads, bed_cache, &signals)
-        })
-        .await
+        let stores = Stores {
+            bed_cache: context.config.bed_cache.clone(),
+            checkpoint_dir: context.config.checkpoint_dir.clone(),
+            checkpoint_every: context.config.checkpoint_every,
+        };
+        tokio::task::spawn_blocking(move || simulate(&kind, &spec, seed, threads, stores, &signals))
+            .await
     };
     // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
     if let Ok(Ok(outcome)) = &outcome {
@@ -574,13 +588,21 @@ async fn heartbeat_loop(
     }
 }
 
+/// Where a job's simulation keeps what outlives it.
+#[derive(Debug, Clone, Default)]
+struct Stores {
+    bed_cache: Option<PathBuf>,
+    checkpoint_dir: Option<PathBuf>,
+    checkpoint_every: Duration,
+}
+
 /// Runs the experiment on a fresh pool of `threads` threads (results do not depend on it).
 fn simulate(
     kind: &str,
     spec: &serde_json::Value,
     seed: u64,
     threads: usize,
-    bed_cache: Option<PathBuf>,
+    stores: Stores,
     signals: &JobSignals,
 ) -> Result<Outcome, ExperimentError> {
     let pool = rayon::ThreadPoolBuilder::new()
@@ -589,12 +611,16 @@ fn simulate(
         .map_err(|e| ExperimentError::Local {
             message: format!("cannot start {threads} simulation threads: {e}"),
         })?;
-    let mut beds: Box<dyn repose_experiments::catalog::BedStore + Send> = match bed_cache {
+    let mut beds: Box<dyn repose_experiments::catalog::BedStore + Send> = match stores.bed_cache {
         Some(dir) => Box::new(FileBedStore::new(dir)),
         None => Box::new(repose_experiments::catalog::NoBedStore),
     };
+    let mut checkpoints: Box<dyn CheckpointStore + Send> = match stores.checkpoint_dir {
+        Some(dir) => Box::new(FileCheckpointStore::new(dir, stores.checkpoint_every)),
+        None => Box::new(NoCheckpoints),
+    };
     pool.install(|| {
-        run_experiment_with_beds(
+        run_experiment_with_stores(
             kind,
             spec,
             seed,
@@ -609,6 +635,7 @@ fn simulate(
                 }
             },
             beds.as_mut(),
+            checkpoints.as_mut(),
         )
     })
 }
@@ -689,11 +716,11 @@ mod tests {
     fn simulate_runs_a_replay_and_honours_cancel() {
         let spec = serde_json::json!({"values": {"a": 1.0}, "rows": [{"a": 1.0, "y": 2.0}]});
         let signals = JobSignals::default();
-        let outcome = simulate("table_lookup", &spec, 0, 1, None, &signals).unwrap();
+        let outcome = simulate("table_lookup", &spec, 0, 1, Stores::default(), &signals).unwrap();
         assert_eq!(outcome.metrics["y"], 2.0);
         signals.cancel.store(true, Ordering::SeqCst);
         assert!(matches!(
-            simulate("table_lookup", &spec, 0, 1, None, &signals),
+            simulate("table_lookup", &spec, 0, 1, Stores::default(), &signals),
             Err(ExperimentError::Cancelled)
         ));
     }

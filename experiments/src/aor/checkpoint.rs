@@ -91,6 +91,14 @@ pub(super) fn encode(spec: &AorSpec, state: &LoopState, world: &World) -> Vec<u8
     bytes
 }
 
+/// The name a store keeps the checkpoints of runs of `spec` under:
+/// `aor-v{FORMAT}-{16 hex digits}`, a 64-bit FNV-1a hash of the spec's JSON (seed included) and
+/// of the release. Runs of equal specs follow one trajectory, so any of them may continue from it.
+pub fn checkpoint_key(spec: &AorSpec) -> String {
+    let json = serde_json::to_string(&(RELEASE, spec)).expect("specs serialise");
+    format!("aor-v{FORMAT}-{:016x}", crate::fnv1a(json.as_bytes()))
+}
+
 /// A run saved between two steps.
 #[derive(Debug, Clone)]
 pub struct AorCheckpoint {

@@ -43,7 +43,7 @@ mod rest;
 mod run;
 mod spec;
 
-pub use checkpoint::{AorCheckpoint, CheckpointError};
+pub use checkpoint::{checkpoint_key, AorCheckpoint, CheckpointError};
 pub use ladder::{ladder_svg, LadderPoint};
 pub use measure::{
     measure_angle_of_repose, AngleOfRepose, DirectionProfile, FlankFit, MeasureError,

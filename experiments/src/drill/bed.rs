@@ -156,16 +156,7 @@ pub fn bed_key(spec: &DrillSpec) -> String {
         seed: spec.bed_seed(),
     };
     let json = serde_json::to_string(&inputs).expect("bed inputs serialise");
-    format!("bed-v{BED_FORMAT}-{:016x}", fnv1a(json.as_bytes()))
-}
-
-fn fnv1a(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
+    format!("bed-v{BED_FORMAT}-{:016x}", crate::fnv1a(json.as_bytes()))
 }
 
 /// SplitMix64: the lattice jitter's random numbers (the engine's RNG draws the grain sizes).
