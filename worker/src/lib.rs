@@ -550,7 +550,12 @@ where
     }
 }
 
-/// Renews the lease every lease/3 with the current progress; flags a lost lease.
+/// The longest time between two heartbeats of a running job.
+const MAX_HEARTBEAT_PERIOD: Duration = Duration::from_secs(30);
+
+/// Renews the lease with the current progress every lease/3, and at least every
+/// [`MAX_HEARTBEAT_PERIOD`], so that under a long lease (hours, for runs that take hours) a job
+/// still shows its progress and hears a cancel within half a minute; flags a lost lease.
 async fn heartbeat_loop(
     client: Client,
     job_id: Uuid,
@@ -558,7 +563,7 @@ async fn heartbeat_loop(
     lease: Duration,
     signals: Arc<JobSignals>,
 ) {
-    let period = lease / 3;
+    let period = (lease / 3).min(MAX_HEARTBEAT_PERIOD);
     loop {
         tokio::time::sleep(period).await;
         let progress = f64::from_bits(signals.progress.load(Ordering::Relaxed));
