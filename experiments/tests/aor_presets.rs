@@ -227,6 +227,7 @@ fn the_ladder_batches_run_the_ladder_presets() {
     for (file, members) in [
         ("ladder_grain_size.json", SIZE_LADDER.to_vec()),
         ("ladder_mass.json", MASS_LADDER.to_vec()),
+        ("ladder_fine.json", vec!["fine"]),
     ] {
         let batch: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(format!("{root}/examples/batches/{file}")).unwrap(),
