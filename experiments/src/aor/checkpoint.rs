@@ -58,6 +58,10 @@ pub(super) struct LoopState {
     pub decision: RestDecision,
     pub next_check: f64,
     pub deadline: f64,
+    /// Funnel runs: (time, mass below the outlet in kg) every check interval, which tells a
+    /// jammed funnel from one still draining when a cap ends the run.
+    #[serde(default)]
+    pub below_outlet: Vec<(f64, f64)>,
     /// Wall-clock seconds spent by the run before this point (all earlier segments).
     pub wall_time_s: f64,
 }

@@ -79,10 +79,13 @@ pub enum RunStatus {
     Ok,
     /// More than `max_escaped_fraction` of the mass left the plate.
     Escaped,
-    /// More than `max_held_up_fraction` of the mass was still in the funnel or tube when the
-    /// run ended (an arch over the outlet): the heap under it holds only part of the mass.
+    /// An arch over the outlet: more than `max_held_up_fraction` of the mass was still in the
+    /// funnel or tube when the run ended, or the pour could never end, and the funnel's outlet
+    /// passed less than a tenth of `mass_rate` at the end (the message gives the rate). The
+    /// heap under it holds only part of the mass.
     HeldUp,
-    /// The heap never came to rest within the caps (or the funnel never passed all the mass).
+    /// The heap never came to rest within the caps, or the cap came while the funnel was still
+    /// filling or draining at a tenth of `mass_rate` or more (raise `time_cap`).
     NotSettled,
     /// The grains do not form a measurable heap.
     MeasurementFailed,
@@ -467,6 +470,39 @@ fn heap_region(world: &World, heap_top: f64, spec: &AorSpec) -> (Vec<[f64; 3]>, 
     (positions, radii, mass)
 }
 
+/// An outflow below this fraction of the mass rate, with grains left to pass, is a jam.
+const JAMMED_OUTFLOW: f64 = 0.1;
+
+/// What the funnel's outlet passed over the last `settle.creep_window_s` of a run (g/s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Outflow {
+    /// Less than [`JAMMED_OUTFLOW`] of the mass rate: an arch (perhaps with a trickle).
+    Jammed(f64),
+    Flowing(f64),
+}
+
+/// The outflow at the end of a funnel run from its samples of (time, kg below the outlet),
+/// over the last `settle.creep_window_s` (or the whole run, if shorter); none for the lifted
+/// cylinder or a run with fewer than two samples.
+fn funnel_outflow(spec: &AorSpec, below_outlet: &[(f64, f64)]) -> Option<Outflow> {
+    let window = spec.settle.creep_window_s;
+    let &(end, mass) = below_outlet.last()?;
+    let &(start, before) = below_outlet
+        .iter()
+        .rev()
+        .find(|&&(t, _)| t <= end - window)
+        .or(below_outlet.first())?;
+    if end <= start {
+        return None;
+    }
+    let rate = (mass - before) / (end - start);
+    Some(if rate < JAMMED_OUTFLOW * spec.mass_rate {
+        Outflow::Jammed(1e3 * rate)
+    } else {
+        Outflow::Flowing(1e3 * rate)
+    })
+}
+
 /// The rest rule's kinetic energy: **translational only**, per grain, over m g d. Rotation is
 /// left out because neither EPSD rolling friction (here and in LIGGGHTS) nor the tangential
 /// force resists a twist about the contact normal: a lone grain on the plate keeps spinning
@@ -555,6 +591,7 @@ pub fn run_aor_with_checkpoints(
                 decision: RestDecision::NotYet(NotYet::TooFewChecks),
                 next_check: f64::INFINITY,
                 deadline: nominal_fill + ready_after + spec.time_cap,
+                below_outlet: Vec::new(),
                 wall_time_s: 0.0,
             };
             (world, state, None)
@@ -578,6 +615,15 @@ pub fn run_aor_with_checkpoints(
                 state.next_check = ready + spec.settle.min_time;
                 state.deadline = ready + spec.time_cap;
             }
+        }
+        if spec.protocol == Protocol::Funnel
+            && state
+                .below_outlet
+                .last()
+                .is_none_or(|&(last, _)| t >= last + spec.settle.check_interval)
+        {
+            let below = heap_region(&world, heap_top, spec).2;
+            state.below_outlet.push((t, below));
         }
         let is_check = t >= state.next_check;
         if world.steps() % REPORT_EVERY == 0 || is_check {
@@ -662,6 +708,7 @@ pub fn run_aor_with_checkpoints(
         insertion_end,
         checks,
         decision,
+        below_outlet,
         ..
     } = state;
     let ended_by = ended_by.expect("loop ends with a reason");
@@ -714,13 +761,37 @@ pub fn run_aor_with_checkpoints(
     let (status, message) = if ended_by == EndedBy::Cancelled {
         (RunStatus::Cancelled, Some("cancelled".to_owned()))
     } else if insertion_end.is_none() {
-        (
-            RunStatus::NotSettled,
-            Some(format!(
-                "only {:.4} of {:.4} kg inserted before the cap (funnel or tube full?)",
-                inserted_mass, spec.total_mass
-            )),
-        )
+        match funnel_outflow(spec, &below_outlet) {
+            Some(Outflow::Jammed(rate)) => (
+                RunStatus::HeldUp,
+                Some(format!(
+                    "the funnel jammed: {rate:.1} g/s passed the outlet at the end, against \
+                     the {:.0} g/s poured in, and only {:.4} of {:.4} kg was inserted by the \
+                     cap (an arch over the outlet, the funnel above it full)",
+                    1e3 * spec.mass_rate,
+                    inserted_mass,
+                    spec.total_mass
+                )),
+            ),
+            flowing => (
+                RunStatus::NotSettled,
+                Some(format!(
+                    "only {:.4} of {:.4} kg inserted before the cap{}: the {} took grains \
+                     slower than mass_rate (raise time_cap)",
+                    inserted_mass,
+                    spec.total_mass,
+                    match flowing {
+                        Some(Outflow::Flowing(rate)) =>
+                            format!(", with {rate:.1} g/s still passing the outlet"),
+                        _ => String::new(),
+                    },
+                    match spec.protocol {
+                        Protocol::Funnel => "funnel",
+                        Protocol::LiftedCylinder => "tube",
+                    }
+                )),
+            ),
+        }
     } else if escaped_fraction > spec.max_escaped_fraction {
         (
             RunStatus::Escaped,
@@ -728,6 +799,25 @@ pub fn run_aor_with_checkpoints(
                 "{:.1} % of the mass left the plate (limit {:.1} %)",
                 100.0 * escaped_fraction,
                 100.0 * spec.max_escaped_fraction
+            )),
+        )
+    } else if held_up_fraction > spec.max_held_up_fraction
+        && matches!(
+            funnel_outflow(spec, &below_outlet),
+            Some(Outflow::Flowing(_))
+        )
+    {
+        (
+            RunStatus::NotSettled,
+            Some(format!(
+                "{:.1} % of the mass was still in the funnel when the run ended \
+                 ({ended_by:?}), draining at {:.1} g/s: the cap came before the pour was \
+                 through (raise time_cap)",
+                100.0 * held_up_fraction,
+                match funnel_outflow(spec, &below_outlet) {
+                    Some(Outflow::Flowing(rate)) => rate,
+                    _ => 0.0,
+                }
             )),
         )
     } else if held_up_fraction > spec.max_held_up_fraction {
