@@ -57,6 +57,10 @@ pub trait CheckpointStore {
     fn put(&mut self, key: &str, bytes: &[u8]);
     /// Forgets `key` (the run has finished).
     fn remove(&mut self, key: &str);
+    /// The bytes under `key` cannot be continued from (`reason`: e.g. written by a build whose
+    /// format this one cannot read): the run starts over, so a store keeps them elsewhere
+    /// rather than letting the new run's first checkpoint replace them.
+    fn reject(&mut self, key: &str, reason: &str);
     /// Wall-clock time between two checkpoints of a run.
     fn every(&self) -> Duration;
 }
@@ -71,6 +75,7 @@ impl CheckpointStore for NoCheckpoints {
     }
     fn put(&mut self, _key: &str, _bytes: &[u8]) {}
     fn remove(&mut self, _key: &str) {}
+    fn reject(&mut self, _key: &str, _reason: &str) {}
     fn every(&self) -> Duration {
         Duration::MAX
     }
@@ -342,10 +347,13 @@ pub fn run_experiment_with_stores(
         ExperimentSpec::Aor(mut spec) => {
             spec.seed = seed;
             let key = checkpoint_key(&spec);
-            let resume = checkpoints
-                .get(&key)
-                .and_then(|bytes| AorCheckpoint::from_bytes(&bytes).ok())
-                .filter(|saved| saved.check_spec(&spec).is_ok());
+            let resume = checkpoints.get(&key).and_then(|bytes| {
+                let saved = AorCheckpoint::from_bytes(&bytes)
+                    .and_then(|saved| saved.check_spec(&spec).map(|()| saved));
+                saved
+                    .map_err(|e| checkpoints.reject(&key, &e.to_string()))
+                    .ok()
+            });
             let every = checkpoints.every();
             let mut keep = |bytes: &[u8]| checkpoints.put(&key, bytes);
             let run = run_aor_with_checkpoints(

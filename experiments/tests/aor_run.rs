@@ -412,3 +412,60 @@ fn a_funnel_that_jams_is_held_up_and_one_still_draining_at_the_cap_is_not_settle
     assert!(message.contains("raise time_cap"), "{message}");
     assert!(message.contains("g/s"), "{message}");
 }
+
+/// A checkpoint store holding one set of bytes, recording what the run did with it.
+#[derive(Default)]
+struct OneCheckpoint {
+    bytes: Option<Vec<u8>>,
+    puts: usize,
+    rejected: Vec<String>,
+    removed: bool,
+}
+
+impl repose_experiments::catalog::CheckpointStore for OneCheckpoint {
+    fn get(&mut self, _key: &str) -> Option<Vec<u8>> {
+        self.bytes.clone()
+    }
+    fn put(&mut self, _key: &str, bytes: &[u8]) {
+        self.puts += 1;
+        self.bytes = Some(bytes.to_vec());
+    }
+    fn remove(&mut self, _key: &str) {
+        self.removed = true;
+        self.bytes = None;
+    }
+    fn reject(&mut self, _key: &str, reason: &str) {
+        self.rejected.push(reason.to_owned());
+    }
+    fn every(&self) -> Duration {
+        Duration::ZERO
+    }
+}
+
+#[test]
+fn a_job_given_unreadable_checkpoint_bytes_rejects_them_and_starts_over() {
+    // Bytes under the run's key that are no checkpoint (another build's format, damage) must
+    // be handed back as rejected, so that a store keeps them aside instead of letting the new
+    // run's first checkpoint replace them; the run starts over, checkpoints as it goes and
+    // removes its checkpoint when it finishes.
+    let spec = serde_json::json!({"total_mass": 0.005, "time_cap": 0.05});
+    let spec = repose_experiments::catalog::prepare_spec("aor", Some("fast"), &spec).unwrap();
+    let mut store = OneCheckpoint {
+        bytes: Some(b"repose aor checkpoint\n\x07\x00\x00\x00".to_vec()),
+        ..OneCheckpoint::default()
+    };
+    let outcome = repose_experiments::catalog::run_experiment_with_stores(
+        "aor",
+        &spec,
+        4,
+        &mut |_| Control::Continue,
+        &mut repose_experiments::catalog::NoBedStore,
+        &mut store,
+    );
+    assert!(
+        store.rejected.len() == 1 && store.rejected[0].contains("format 7"),
+        "{:?}",
+        store.rejected
+    );
+    assert!(store.puts > 0 && store.removed, "{outcome:?}");
+}

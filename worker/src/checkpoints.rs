@@ -69,6 +69,16 @@ impl CheckpointStore for FileCheckpointStore {
         }
     }
 
+    fn reject(&mut self, key: &str, reason: &str) {
+        let aside = self.dir.join(format!("{key}.unreadable"));
+        match std::fs::rename(self.path(key), &aside) {
+            Ok(()) => tracing::warn!(key, reason, kept = %aside.display(),
+                "cannot continue from the checkpoint; the run starts over and the checkpoint is kept aside"),
+            Err(e) => tracing::warn!(key, reason, error = %e,
+                "cannot continue from the checkpoint, nor move it aside; the run starts over"),
+        }
+    }
+
     fn every(&self) -> Duration {
         self.every
     }
@@ -93,6 +103,21 @@ mod tests {
         store.remove("k");
         assert_eq!(store.get("k"), None);
         assert_eq!(store.every(), Duration::from_secs(60));
+    }
+
+    #[test]
+    fn a_rejected_checkpoint_is_kept_aside_not_overwritten() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = FileCheckpointStore::new(dir.path(), Duration::from_secs(60));
+        store.put("k", b"written by another build");
+        store.reject("k", "checkpoint format 7; this build reads format 1");
+        assert_eq!(store.get("k"), None);
+        store.put("k", b"the new run's");
+        assert_eq!(
+            std::fs::read(dir.path().join("k.unreadable")).unwrap(),
+            b"written by another build"
+        );
+        assert_eq!(store.get("k").as_deref(), Some(&b"the new run's"[..]));
     }
 
     #[test]

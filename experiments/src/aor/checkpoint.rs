@@ -58,12 +58,15 @@ pub(super) struct LoopState {
     pub decision: RestDecision,
     pub next_check: f64,
     pub deadline: f64,
+    /// Wall-clock seconds spent by the run before this point (all earlier segments).
+    pub wall_time_s: f64,
+    // Fields added after format 1 go below, each with a default: MessagePack keeps a struct as
+    // an array, so a checkpoint written before the field existed reads with the default only
+    // if the field is last (tested).
     /// Funnel runs: (time, mass below the outlet in kg) every check interval, which tells a
     /// jammed funnel from one still draining when a cap ends the run.
     #[serde(default)]
     pub below_outlet: Vec<(f64, f64)>,
-    /// Wall-clock seconds spent by the run before this point (all earlier segments).
-    pub wall_time_s: f64,
 }
 
 #[derive(Serialize)]
@@ -243,6 +246,37 @@ mod tests {
             Some(("x.1".into(), "2".into(), "3".into()))
         );
         assert_eq!(first_difference(&a, &a, String::new()), None);
+    }
+
+    #[test]
+    fn a_loop_state_written_before_its_newest_field_reads_with_the_default() {
+        // The layout of format 1 as the first builds wrote it (2026-11-25, 6ca2e4f).
+        #[derive(Serialize)]
+        struct LoopStateAsFirstWritten {
+            heap_top: f64,
+            ready_after: f64,
+            insertion_end: Option<f64>,
+            checks: Vec<SettleCheck>,
+            decision: RestDecision,
+            next_check: f64,
+            deadline: f64,
+            wall_time_s: f64,
+        }
+        let old = LoopStateAsFirstWritten {
+            heap_top: 0.1,
+            ready_after: 0.2,
+            insertion_end: Some(2.0),
+            checks: Vec::new(),
+            decision: RestDecision::AtRest,
+            next_check: 2.1,
+            deadline: 6.0,
+            wall_time_s: 1430.8,
+        };
+        let bytes = rmp_serde::to_vec(&old).unwrap();
+        let read: LoopState = rmp_serde::from_slice(&bytes).unwrap();
+        assert_eq!(read.wall_time_s, 1430.8);
+        assert_eq!(read.deadline, 6.0);
+        assert!(read.below_outlet.is_empty());
     }
 
     #[test]
