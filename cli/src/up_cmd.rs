@@ -307,9 +307,32 @@ struct LocalTokens {
     worker: String,
 }
 
-/// Creates a fresh user and worker token in the database and writes them to `file` as
-/// `export` lines (owner-only permissions), so `source FILE` makes the README's curl examples
-/// work. Each start makes new tokens (names carry the time) and the old ones stay valid.
+/// The user and worker tokens of the last start, read back from `file`, if the database still
+/// holds both unrevoked with their roles.
+async fn tokens_in_file(db: &std::path::Path, file: &std::path::Path) -> Option<LocalTokens> {
+    use repose_server::tokens::find_secret;
+    use repose_server::TokenRole;
+    let text = std::fs::read_to_string(file).ok()?;
+    let value = |key: &str| {
+        text.lines()
+            .find_map(|l| l.strip_prefix(&format!("export {key}=")))
+            .map(|v| v.trim().to_owned())
+    };
+    let (user, worker) = (value("REPOSE_TOKEN")?, value("REPOSE_WORKER_TOKEN")?);
+    for (secret, role) in [(&user, TokenRole::User), (&worker, TokenRole::Worker)] {
+        let token = find_secret(db, secret).await.ok()??;
+        if token.role != role || token.revoked_at_ms.is_some() {
+            return None;
+        }
+    }
+    Some(LocalTokens { user, worker })
+}
+
+/// The user and worker tokens of this database's `repose up`, written to `file` as `export`
+/// lines (owner-only permissions), so `source FILE` makes the README's curl examples work. A
+/// start reuses the tokens `file` holds while the database holds them unrevoked, so the batches
+/// submitted before a restart stay the same user's (who alone may cancel them); otherwise it
+/// creates new ones (names carry the time).
 async fn local_tokens(
     db: &std::path::Path,
     file: &std::path::Path,
@@ -317,11 +340,18 @@ async fn local_tokens(
 ) -> Result<LocalTokens> {
     use repose_server::tokens::create_token;
     use repose_server::TokenRole;
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis());
-    let user = create_token(db, &format!("local-user-{stamp}"), TokenRole::User).await?;
-    let worker = create_token(db, &format!("local-worker-{stamp}"), TokenRole::Worker).await?;
+    let (user, worker) = match tokens_in_file(db, file).await {
+        Some(kept) => (kept.user, kept.worker),
+        None => {
+            let stamp = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_millis());
+            let user = create_token(db, &format!("local-user-{stamp}"), TokenRole::User).await?;
+            let worker =
+                create_token(db, &format!("local-worker-{stamp}"), TokenRole::Worker).await?;
+            (user, worker)
+        }
+    };
     let text = format!(
         "# written by `repose up`; `source` this file to use the API from a shell\n\
          export REPOSE_SERVER={url}\nexport REPOSE_TOKEN={user}\nexport REPOSE_WORKER_TOKEN={worker}\n"

@@ -64,6 +64,15 @@ pub async fn create_token(
     }
 }
 
+/// The token whose secret text is `secret`, revoked or not, if the database at `db_path`
+/// holds it (found by the secret's hash).
+pub async fn find_secret(db_path: &Path, secret: &str) -> Result<Option<TokenInfo>, ServeError> {
+    let db = Db::open(db_path).await?;
+    let found = db.find_token(&hash_secret(secret)).await;
+    db.close().await;
+    Ok(found?)
+}
+
 /// Every token of the database at `db_path`, oldest first, revoked ones included.
 pub async fn list_tokens(db_path: &Path) -> Result<Vec<TokenInfo>, ServeError> {
     let db = Db::open(db_path).await?;

@@ -433,6 +433,58 @@ fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
             .mode();
         assert_eq!(mode & 0o077, 0, "tokens file is private: {mode:o}");
     }
+
+    // A restart on the same database is the same user (who alone may cancel the batches it
+    // submitted before), until that token is revoked.
+    let up_again = || {
+        let out = std::process::Command::new(common::repose_bin())
+            .args([
+                "up",
+                "--workers",
+                "1",
+                "--listen",
+                "127.0.0.1:0",
+                "--exit-when-done",
+            ])
+            .arg("--db")
+            .arg(&db)
+            .arg("--submit")
+            .arg(&batch_file)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", common::stderr(&out));
+        std::fs::read_to_string(dir.path().join("up.db.tokens.env")).unwrap()
+    };
+    let secrets = |text: &str| -> Vec<String> {
+        text.lines()
+            .filter(|l| l.contains("_TOKEN="))
+            .map(str::to_owned)
+            .collect()
+    };
+    assert_eq!(
+        secrets(&up_again()),
+        secrets(&tokens),
+        "a restart keeps its tokens"
+    );
+    let user = tokens
+        .lines()
+        .find_map(|l| l.strip_prefix("export REPOSE_TOKEN="))
+        .unwrap();
+    let listed = repose(&["token", "list", "--db", db.to_str().unwrap()]);
+    let name = common::stdout(&listed)
+        .lines()
+        .find(|l| l.starts_with("local-user-"))
+        .and_then(|l| l.split_whitespace().next())
+        .unwrap()
+        .to_owned();
+    let revoked = repose(&["token", "revoke", &name, "--db", db.to_str().unwrap()]);
+    assert!(revoked.status.success(), "{}", common::stderr(&revoked));
+    let fresh = up_again();
+    assert_ne!(fresh, tokens);
+    assert!(
+        !fresh.contains(user),
+        "a revoked token is not reused: {fresh}"
+    );
 }
 
 #[test]
