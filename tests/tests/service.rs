@@ -349,6 +349,25 @@ fn sigterm_releases_the_running_job_without_counting_an_attempt() {
     );
 }
 
+/// `repose up` on `db` with `workers` local workers, submitting `batch` and exiting when it is
+/// done (any free port).
+fn repose_up(
+    db: &std::path::Path,
+    batch: &std::path::Path,
+    workers: usize,
+) -> std::process::Output {
+    std::process::Command::new(common::repose_bin())
+        .args(["up", "--listen", "127.0.0.1:0", "--exit-when-done"])
+        .arg("--workers")
+        .arg(workers.to_string())
+        .arg("--db")
+        .arg(db)
+        .arg("--submit")
+        .arg(batch)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn repose_up_names_each_dead_run_and_why_it_failed() {
     // Four table rows and a fifth design point between two of them: the table has no row for
@@ -361,21 +380,7 @@ fn repose_up_names_each_dead_run_and_why_it_failed() {
         .push(json!([1.5]));
     let batch_file = dir.path().join("replay.json");
     std::fs::write(&batch_file, batch.to_string()).unwrap();
-    let out = std::process::Command::new(common::repose_bin())
-        .args([
-            "up",
-            "--workers",
-            "1",
-            "--listen",
-            "127.0.0.1:0",
-            "--exit-when-done",
-        ])
-        .arg("--db")
-        .arg(dir.path().join("up.db"))
-        .arg("--submit")
-        .arg(&batch_file)
-        .output()
-        .unwrap();
+    let out = repose_up(&dir.path().join("up.db"), &batch_file, 1);
     let stdout = common::stdout(&out);
     assert!(!out.status.success(), "a dead run is not a clean finish");
     assert!(stdout.contains("4 completed, 1 dead"), "{stdout}");
@@ -393,21 +398,7 @@ fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
     let batch_file = dir.path().join("replay.json");
     std::fs::write(&batch_file, replay_batch(4, 0.0).to_string()).unwrap();
     let db = dir.path().join("up.db");
-    let out = std::process::Command::new(common::repose_bin())
-        .args([
-            "up",
-            "--workers",
-            "2",
-            "--listen",
-            "127.0.0.1:0",
-            "--exit-when-done",
-        ])
-        .arg("--db")
-        .arg(&db)
-        .arg("--submit")
-        .arg(&batch_file)
-        .output()
-        .unwrap();
+    let out = repose_up(&db, &batch_file, 2);
     let stdout = common::stdout(&out);
     assert!(out.status.success(), "{stdout}\n{}", common::stderr(&out));
     assert!(
@@ -437,21 +428,7 @@ fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
     // A restart on the same database is the same user (who alone may cancel the batches it
     // submitted before), until that token is revoked.
     let up_again = || {
-        let out = std::process::Command::new(common::repose_bin())
-            .args([
-                "up",
-                "--workers",
-                "1",
-                "--listen",
-                "127.0.0.1:0",
-                "--exit-when-done",
-            ])
-            .arg("--db")
-            .arg(&db)
-            .arg("--submit")
-            .arg(&batch_file)
-            .output()
-            .unwrap();
+        let out = repose_up(&db, &batch_file, 1);
         assert!(out.status.success(), "{}", common::stderr(&out));
         std::fs::read_to_string(dir.path().join("up.db.tokens.env")).unwrap()
     };
