@@ -183,6 +183,11 @@ impl UserClient {
         }
     }
 
+    pub async fn campaigns(&self) -> Result<Vec<repose_api::CampaignSummary>> {
+        self.expect(self.request(reqwest::Method::GET, "/v1/campaigns"))
+            .await
+    }
+
     pub async fn batches(&self) -> Result<Vec<BatchSummary>> {
         self.expect(self.request(reqwest::Method::GET, "/v1/batches"))
             .await

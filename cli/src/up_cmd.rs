@@ -43,6 +43,8 @@ pub struct UpArgs {
     #[arg(long, value_name = "FILE")]
     pub campaign: Vec<PathBuf>,
     /// Stop once every submitted batch and campaign has finished (default: serve until Ctrl-C).
+    /// Without --submit or --campaign: once the batches and campaigns the database already
+    /// holds unfinished have finished (e.g. after a restart in the middle of a long run).
     #[arg(long)]
     pub exit_when_done: bool,
     /// Keep each run's pictures under DIR/<run id>/.
@@ -110,9 +112,6 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         .iter()
         .map(|path| Ok((path.clone(), read_batch_file(path)?)))
         .collect::<Result<Vec<_>>>()?;
-    if args.exit_when_done && submit.is_empty() && campaigns.is_empty() {
-        bail!("--exit-when-done needs something to wait for (--submit or --campaign)");
-    }
     let mut server = Config::new(args.db.clone());
     server.listen = args.listen;
     server.lease = Duration::from_secs_f64(args.lease_s);
@@ -257,6 +256,29 @@ async fn follow_submissions(client: &UserClient, config: &UpConfig) -> Result<()
             created.first_batch
         );
         campaign_ids.push(created.id);
+    }
+    if config.exit_when_done && ids.is_empty() && campaign_ids.is_empty() {
+        // A restart: wait for what the database holds unfinished.
+        ids = client
+            .batches()
+            .await?
+            .into_iter()
+            .filter(|b| b.state == BatchState::Active)
+            .map(|b| b.id)
+            .collect();
+        campaign_ids = client
+            .campaigns()
+            .await?
+            .into_iter()
+            .filter(|c| c.status == "running")
+            .map(|c| c.id)
+            .collect();
+        println!(
+            "following {} unfinished batch(es) and {} campaign(s) of {}",
+            ids.len(),
+            campaign_ids.len(),
+            config.server.db_path.display()
+        );
     }
     let mut failed = Vec::new();
     for id in ids {

@@ -369,6 +369,71 @@ fn repose_up(
 }
 
 #[test]
+fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_batch() {
+    // `repose up` is killed (SIGKILL) while its workers hold the batch's jobs; started again on
+    // the same database with --exit-when-done and nothing to submit, it follows the unfinished
+    // batch to its end (the leases of the killed workers expire after 2 s) and exits cleanly.
+    let dir = tempfile::tempdir().unwrap();
+    let batch_file = dir.path().join("replay.json");
+    std::fs::write(&batch_file, replay_batch(3, 2.0).to_string()).unwrap();
+    let db = dir.path().join("up.db");
+    let mut first = std::process::Command::new(common::repose_bin())
+        .args([
+            "up",
+            "--workers",
+            "1",
+            "--listen",
+            "127.0.0.1:0",
+            "--lease-s",
+            "2",
+        ])
+        .arg("--db")
+        .arg(&db)
+        .arg("--submit")
+        .arg(&batch_file)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(first.stdout.take().unwrap()));
+    let submitted = lines
+        .by_ref()
+        .map(Result::unwrap)
+        .find(|l| l.starts_with("submitted "))
+        .expect("the batch is submitted");
+    std::thread::sleep(Duration::from_millis(500));
+    first.kill().unwrap();
+    first.wait().unwrap();
+
+    let out = std::process::Command::new(common::repose_bin())
+        .args([
+            "up",
+            "--workers",
+            "1",
+            "--listen",
+            "127.0.0.1:0",
+            "--exit-when-done",
+        ])
+        .arg("--db")
+        .arg(&db)
+        .output()
+        .unwrap();
+    let stdout = common::stdout(&out);
+    assert!(out.status.success(), "{stdout}\n{}", common::stderr(&out));
+    assert!(
+        stdout.contains("following 1 unfinished batch(es)"),
+        "{stdout}"
+    );
+    let id = submitted.split_whitespace().nth(4).unwrap();
+    assert!(
+        stdout.contains(&format!(
+            "batch {id} (replay) Completed: 3 completed, 0 dead"
+        )),
+        "{submitted}\n{stdout}"
+    );
+}
+
+#[test]
 fn repose_up_names_each_dead_run_and_why_it_failed() {
     // Four table rows and a fifth design point between two of them: the table has no row for
     // it, a permanent failure, so that run is dead at once; the others complete.
