@@ -5,9 +5,9 @@
 //! every f64's bits.
 //!
 //! Bytes: the magic line [`MAGIC`], the format number (u32, little endian), then the
-//! MessagePack of the release that wrote it, the spec, the loop state and the world. A
-//! checkpoint is read only by the release that wrote it: another build's engine would continue
-//! another trajectory.
+//! MessagePack of the build that wrote it, the spec, the loop state and the world. A checkpoint
+//! is read only by a build of the same code: the release and a fingerprint of the engine's and
+//! this crate's sources (`build.rs`), since other code would continue another trajectory.
 
 use repose_engine::world::World;
 use serde::{Deserialize, Serialize};
@@ -21,7 +21,13 @@ use super::spec::AorSpec;
 pub const MAGIC: &[u8] = b"repose aor checkpoint\n";
 /// The layout after [`MAGIC`]; bumped when the loop state or the world's serde form changes.
 pub const FORMAT: u32 = 1;
-const RELEASE: &str = env!("CARGO_PKG_VERSION");
+/// The release and the fingerprint of the code that decides a trajectory, e.g.
+/// `0.1.0+3f0c…`.
+const RELEASE: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    "+",
+    env!("REPOSE_TRAJECTORY_CODE")
+);
 
 /// Why bytes are not a checkpoint this run can continue from.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -32,7 +38,7 @@ pub enum CheckpointError {
     NotACheckpoint,
     #[error("checkpoint format {found}; this build reads format {expected}")]
     Format { found: u32, expected: u32 },
-    #[error("checkpoint written by release {found}; this build is {expected} and would continue another trajectory")]
+    #[error("checkpoint written by build {found}; this build is {expected} (other engine or experiment code) and would continue another trajectory")]
     Release { found: String, expected: String },
     #[error("the checkpoint is damaged: {0}")]
     Corrupt(String),
@@ -277,6 +283,51 @@ mod tests {
         assert_eq!(read.wall_time_s, 1430.8);
         assert_eq!(read.deadline, 6.0);
         assert!(read.below_outlet.is_empty());
+    }
+
+    #[test]
+    fn a_checkpoint_of_other_code_is_refused() {
+        let spec = AorSpec::fast();
+        let world = World::new(
+            spec.material_set().build().unwrap(),
+            repose_engine::world::WorldConfig::new(
+                1e-5,
+                repose_engine::neighbor::Domain::closed(
+                    repose_engine::math::Vec3::zeros(),
+                    repose_engine::math::Vec3::repeat(1.0),
+                ),
+            ),
+        )
+        .unwrap();
+        let state = LoopState {
+            heap_top: 0.1,
+            ready_after: 0.2,
+            insertion_end: None,
+            checks: Vec::new(),
+            decision: RestDecision::AtRest,
+            next_check: 0.3,
+            deadline: 1.0,
+            wall_time_s: 0.0,
+            below_outlet: Vec::new(),
+        };
+        let ours = encode(&spec, &state, &world);
+        assert!(AorCheckpoint::from_bytes(&ours).is_ok());
+        let mut other = MAGIC.to_vec();
+        other.extend_from_slice(&FORMAT.to_le_bytes());
+        let body = Written {
+            release: "0.1.0+0000000000000000",
+            spec: &spec,
+            state: &state,
+            world: &world,
+        };
+        rmp_serde::encode::write(&mut other, &body).unwrap();
+        let err = AorCheckpoint::from_bytes(&other).unwrap_err();
+        assert!(
+            matches!(&err, CheckpointError::Release { found, .. } if found == "0.1.0+0000000000000000"),
+            "{err}"
+        );
+        assert!(RELEASE.starts_with(concat!(env!("CARGO_PKG_VERSION"), "+")));
+        assert_eq!(RELEASE.len(), env!("CARGO_PKG_VERSION").len() + 17);
     }
 
     #[test]
