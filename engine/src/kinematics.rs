@@ -233,6 +233,11 @@ impl Motion {
         )
     }
 
+    /// True if the body never moves (no translation or rotation segments).
+    pub fn is_stationary(&self) -> bool {
+        self.translations.is_empty() && self.rotations.is_empty()
+    }
+
     /// A body that never moves from `placement`.
     pub fn stationary(placement: Pose) -> Motion {
         Motion {

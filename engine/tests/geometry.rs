@@ -399,8 +399,8 @@ proptest! {
     }
 
     /// The world's cached wall candidates: a sphere whose distance to the mesh has changed by
-    /// less than `skin` since its candidates were listed (radius + skin; in the world, up to
-    /// skin/2 from the particle and skin/2 from the geometry) finds, among them, exactly the
+    /// less than `skin` since its candidates were listed (radius + skin; in the world, the
+    /// particle's own half skin plus the geometry's allowance) finds, among them, exactly the
     /// contacts of the full search.
     #[test]
     fn candidate_triangles_find_the_same_contacts_as_the_full_search(

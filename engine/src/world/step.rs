@@ -138,15 +138,15 @@ impl World {
             .map(|(g, geometry)| {
                 let pose = geometry.motion.pose_at(t);
                 let (aabb_min, aabb_max) = world_aabb(&geometry.mesh, &pose);
-                // Particles move at most skin/2 between rebuilds; the candidates hold every
-                // triangle within radius + margin, so they stay complete while the geometry
-                // has moved at most margin - skin/2.
+                // Particles move at most their own half skin between rebuilds; the candidates
+                // hold every triangle within radius + half skin + the geometry's allowance, so
+                // they stay complete while the geometry has moved at most its allowance.
                 let cached = have_candidates
                     && displacement_bound(
                         &walls.build_pose[g],
                         &pose,
                         geometry.mesh.max_vertex_distance(),
-                    ) <= walls.margin - 0.5 * self.skin;
+                    ) <= walls.allowance[g];
                 PlacedGeometry {
                     inverse: pose.inverse(),
                     pose,

@@ -2,12 +2,15 @@
 //!
 //! Walking a mesh's grid for every particle every step cost a third of a funnel run. At each
 //! rebuild, every particle instead records the triangles of each geometry that lie within its
-//! radius plus the skin (in CSR form, like the pair list). Until the next rebuild a particle
-//! moves at most skin/2 (the rebuild criterion); as long as a geometry has also moved at most
-//! skin/2 since the build, no triangle outside the list can come closer than the particle's
-//! radius, so testing the listed triangles finds exactly the contacts the grid query would.
-//! A geometry that has moved further (a turning auger, a lifted cylinder) is *live* until the
-//! next rebuild: its contacts are found by the grid query, as before.
+//! radius plus its own half skin plus the geometry's *allowance* (in CSR form, like the pair
+//! list). Until the next rebuild a particle moves at most its own half skin (the rebuild
+//! criterion); as long as a geometry has moved at most its allowance since the build, no
+//! triangle outside the list can come closer than the particle's radius, so testing the listed
+//! triangles finds exactly the contacts the grid query would. A geometry that never moves has
+//! no allowance (a settled grain on the plate lists only the triangles within 0.075 d of its
+//! surface, not 0.5 d); a moving one is allowed half the largest skin, and once it has moved
+//! further (a turning auger, a lifted cylinder) it is *live* until the next rebuild: its
+//! contacts are found by the grid query, as before.
 
 use rayon::prelude::*;
 
@@ -24,8 +27,10 @@ pub(super) struct WallCandidates {
     pub(super) triangle: Vec<u32>,
     /// Each geometry's pose at the build.
     pub(super) build_pose: Vec<Pose>,
-    /// Candidates hold every triangle within radius + `margin` of the centre at the build.
-    pub(super) margin: f64,
+    /// Per geometry: how far it may move after the build while the candidates stay complete.
+    /// A particle's candidates of geometry g hold every triangle within its radius + its half
+    /// skin + `allowance[g]` of its centre at the build.
+    pub(super) allowance: Vec<f64>,
 }
 
 impl WallCandidates {
@@ -59,7 +64,17 @@ impl World {
     pub(super) fn build_wall_candidates(&mut self, t: f64) {
         let p = &self.particles;
         let n = p.len();
-        let margin = self.skin;
+        let allowance: Vec<f64> = self
+            .geometries
+            .iter()
+            .map(|g| {
+                if g.motion.is_stationary() {
+                    0.0
+                } else {
+                    0.5 * self.skin
+                }
+            })
+            .collect();
         let poses: Vec<Pose> = self
             .geometries
             .iter()
@@ -83,8 +98,12 @@ impl World {
                 for i in range {
                     let start = triangle.len();
                     let x = p.position[i];
-                    let reach = p.radius[i] + margin;
+                    // The move test compares with the build position rounded to f32: allow
+                    // for that rounding (a few 1e-8 m), far below any skin.
+                    let rounding = 4.0 * f32::EPSILON as f64 * x.amax().max(1.0);
+                    let own = p.radius[i] + p.build_mark[i].half_skin as f64 + rounding;
                     for (g, mesh_box) in boxes.iter().enumerate() {
+                        let reach = own + allowance[g];
                         let r = Vec3::repeat(reach);
                         let (lo, hi) = (x - r, x + r);
                         if (0..3).any(|a| lo[a] > mesh_box.1[a] || hi[a] < mesh_box.0[a]) {
@@ -120,7 +139,7 @@ impl World {
             walls.triangle.extend_from_slice(&triangle);
         }
         walls.build_pose = poses;
-        walls.margin = margin;
+        walls.allowance = allowance;
     }
 }
 
