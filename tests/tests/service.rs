@@ -349,19 +349,25 @@ fn sigterm_releases_the_running_job_without_counting_an_attempt() {
     );
 }
 
-/// `repose up` on `db` with `workers` local workers, submitting `batch` and exiting when it is
-/// done (any free port).
+/// `repose up` on `db` with `workers` local workers on any free port; the caller adds the rest.
+fn up_command(db: &std::path::Path, workers: usize) -> std::process::Command {
+    let mut command = std::process::Command::new(common::repose_bin());
+    command
+        .args(["up", "--listen", "127.0.0.1:0", "--workers"])
+        .arg(workers.to_string())
+        .arg("--db")
+        .arg(db);
+    command
+}
+
+/// `repose up` on `db`, submitting `batch` and exiting when it is done.
 fn repose_up(
     db: &std::path::Path,
     batch: &std::path::Path,
     workers: usize,
 ) -> std::process::Output {
-    std::process::Command::new(common::repose_bin())
-        .args(["up", "--listen", "127.0.0.1:0", "--exit-when-done"])
-        .arg("--workers")
-        .arg(workers.to_string())
-        .arg("--db")
-        .arg(db)
+    up_command(db, workers)
+        .arg("--exit-when-done")
         .arg("--submit")
         .arg(batch)
         .output()
@@ -377,19 +383,8 @@ fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_bat
     let batch_file = dir.path().join("replay.json");
     std::fs::write(&batch_file, replay_batch(3, 2.0).to_string()).unwrap();
     let db = dir.path().join("up.db");
-    let mut first = std::process::Command::new(common::repose_bin())
-        .args([
-            "up",
-            "--workers",
-            "1",
-            "--listen",
-            "127.0.0.1:0",
-            "--lease-s",
-            "2",
-        ])
-        .arg("--db")
-        .arg(&db)
-        .arg("--submit")
+    let mut first = up_command(&db, 1)
+        .args(["--lease-s", "2", "--submit"])
         .arg(&batch_file)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
@@ -405,19 +400,7 @@ fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_bat
     first.kill().unwrap();
     first.wait().unwrap();
 
-    let out = std::process::Command::new(common::repose_bin())
-        .args([
-            "up",
-            "--workers",
-            "1",
-            "--listen",
-            "127.0.0.1:0",
-            "--exit-when-done",
-        ])
-        .arg("--db")
-        .arg(&db)
-        .output()
-        .unwrap();
+    let out = up_command(&db, 1).arg("--exit-when-done").output().unwrap();
     let stdout = common::stdout(&out);
     assert!(out.status.success(), "{stdout}\n{}", common::stderr(&out));
     assert!(
