@@ -119,8 +119,10 @@ pub fn run(args: &AorArgs) -> Result<()> {
             if let Some(file) = &args.checkpoint {
                 // A checkpoint that cannot be written (full disk) costs only the restart
                 // point: the last one written stays whole, and the run goes on.
-                if let Err(e) = write_atomically(file, bytes) {
-                    bar.suspend(|| eprintln!("warning: checkpoint not kept: {e:#}"));
+                if let Err(e) = repose_worker::write_atomically(file, bytes) {
+                    bar.suspend(|| {
+                        eprintln!("warning: checkpoint not kept in {}: {e}", file.display())
+                    });
                 }
             }
         };
@@ -199,24 +201,6 @@ fn read_checkpoint(file: &Path, spec: &AorSpec) -> Result<Option<AorCheckpoint>>
         saved.wall_time_s()
     );
     Ok(Some(saved))
-}
-
-/// Replaces `file` by `bytes` so that a reader (or a crash) sees the old file or the new one,
-/// never half of one: a temporary file beside it, synced, renamed over it.
-fn write_atomically(file: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = match file.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let mut temp = tempfile::NamedTempFile::new_in(dir)
-        .with_context(|| format!("cannot create a file in {}", dir.display()))?;
-    temp.write_all(bytes)
-        .and_then(|()| temp.as_file().sync_all())
-        .with_context(|| format!("cannot write a checkpoint in {}", dir.display()))?;
-    temp.persist(file)
-        .with_context(|| format!("cannot replace {}", file.display()))?;
-    Ok(())
 }
 
 /// Grain centres and radii from a CSV whose header names x, y, z and radius (or r).

@@ -31,19 +31,8 @@ impl FileBedStore {
 
     /// Writes `bed`; the error says which file could not be written.
     pub fn write(&self, bed: &SettledBed) -> std::io::Result<()> {
-        std::fs::create_dir_all(&self.dir)?;
-        let path = self.path(&bed.key);
-        let partial = self.dir.join(format!(
-            "{}.json.{}.{:?}.partial",
-            bed.key,
-            std::process::id(),
-            std::thread::current().id()
-        ));
         let json = serde_json::to_vec(bed).map_err(std::io::Error::other)?;
-        std::fs::write(&partial, json)?;
-        std::fs::rename(&partial, &path).inspect_err(|_| {
-            let _ = std::fs::remove_file(&partial);
-        })
+        crate::checkpoints::write_atomically(&self.path(&bed.key), &json)
     }
 }
 

@@ -36,13 +36,24 @@ impl FileCheckpointStore {
 
     /// Replaces the checkpoint under `key`; the error says what could not be written.
     pub fn write(&self, key: &str, bytes: &[u8]) -> std::io::Result<()> {
-        std::fs::create_dir_all(&self.dir)?;
-        let mut temp = tempfile::NamedTempFile::new_in(&self.dir)?;
-        temp.write_all(bytes)?;
-        temp.as_file().sync_all()?;
-        temp.persist(self.path(key)).map_err(|e| e.error)?;
-        Ok(())
+        write_atomically(&self.path(key), bytes)
     }
+}
+
+/// Replaces `file` by `bytes` so that a reader (or a crash, or a full disk) sees the old file
+/// or the new one, never half of one: a temporary file beside it, synced, renamed over it. The
+/// directory is created if missing.
+pub fn write_atomically(file: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = match file.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(dir)?;
+    let mut temp = tempfile::NamedTempFile::new_in(dir)?;
+    temp.write_all(bytes)?;
+    temp.as_file().sync_all()?;
+    temp.persist(file).map_err(|e| e.error)?;
+    Ok(())
 }
 
 impl CheckpointStore for FileCheckpointStore {

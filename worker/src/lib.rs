@@ -44,7 +44,7 @@ mod checkpoints;
 mod client;
 
 pub use beds::FileBedStore;
-pub use checkpoints::FileCheckpointStore;
+pub use checkpoints::{write_atomically, FileCheckpointStore};
 pub use client::{CallError, Client};
 
 /// Worker settings; the command line fills this from its flags.

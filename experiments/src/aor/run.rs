@@ -758,10 +758,15 @@ pub fn run_aor_with_checkpoints(
     let held_up_fraction = of_inserted(held_up.mass);
     let came_to_rest = ended_by == EndedBy::AtRest;
     let rest = rest_state(&checks, &spec.settle);
+    let outflow = funnel_outflow(spec, &below_outlet);
+    let draining = match outflow {
+        Some(Outflow::Flowing(rate)) => Some(rate),
+        _ => None,
+    };
     let (status, message) = if ended_by == EndedBy::Cancelled {
         (RunStatus::Cancelled, Some("cancelled".to_owned()))
     } else if insertion_end.is_none() {
-        match funnel_outflow(spec, &below_outlet) {
+        match outflow {
             Some(Outflow::Jammed(rate)) => (
                 RunStatus::HeldUp,
                 Some(format!(
@@ -773,18 +778,16 @@ pub fn run_aor_with_checkpoints(
                     spec.total_mass
                 )),
             ),
-            flowing => (
+            _ => (
                 RunStatus::NotSettled,
                 Some(format!(
                     "only {:.4} of {:.4} kg inserted before the cap{}: the {} took grains \
                      slower than mass_rate (raise time_cap)",
                     inserted_mass,
                     spec.total_mass,
-                    match flowing {
-                        Some(Outflow::Flowing(rate)) =>
-                            format!(", with {rate:.1} g/s still passing the outlet"),
-                        _ => String::new(),
-                    },
+                    draining.map_or(String::new(), |rate| format!(
+                        ", with {rate:.1} g/s still passing the outlet"
+                    )),
                     match spec.protocol {
                         Protocol::Funnel => "funnel",
                         Protocol::LiftedCylinder => "tube",
@@ -801,23 +804,14 @@ pub fn run_aor_with_checkpoints(
                 100.0 * spec.max_escaped_fraction
             )),
         )
-    } else if held_up_fraction > spec.max_held_up_fraction
-        && matches!(
-            funnel_outflow(spec, &below_outlet),
-            Some(Outflow::Flowing(_))
-        )
-    {
+    } else if let (true, Some(rate)) = (held_up_fraction > spec.max_held_up_fraction, draining) {
         (
             RunStatus::NotSettled,
             Some(format!(
                 "{:.1} % of the mass was still in the funnel when the run ended \
-                 ({ended_by:?}), draining at {:.1} g/s: the cap came before the pour was \
+                 ({ended_by:?}), draining at {rate:.1} g/s: the cap came before the pour was \
                  through (raise time_cap)",
                 100.0 * held_up_fraction,
-                match funnel_outflow(spec, &below_outlet) {
-                    Some(Outflow::Flowing(rate)) => rate,
-                    _ => 0.0,
-                }
             )),
         )
     } else if held_up_fraction > spec.max_held_up_fraction {
