@@ -911,25 +911,9 @@ mod tests {
         }
     }
 
-    /// Per-particle skins (`BuildMark`): a fast stream falls into a slow bed; after every
-    /// step every touching pair (brute force over all pairs) is in the pair list, and the
-    /// stream's skins are wider than the bed's.
-    #[test]
-    fn per_particle_skins_never_miss_a_touching_pair() {
-        let materials = frictional_paper_table(0.4);
-        let soil = materials.id("soil").unwrap();
-        let r = 1e-3;
-        let side = 0.012;
-        let domain = Domain {
-            min: Vec3::new(0.0, 0.0, -0.01),
-            max: Vec3::new(side, side, 0.1),
-            periodic_x: true,
-            periodic_y: true,
-        };
-        let dt = materials.rayleigh_time_step(soil, r, 0.2);
-        let steel = materials.id("steel").unwrap();
-        let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
-        add_floor(&mut world, steel, 0.03);
+    /// A slow bed of 4 layers of 25 grains (radius 0.9-1.0 `r`) from z = r over a
+    /// `side` × `side` square, and a fast stream of 2 layers 16 mm up falling at 2.5 m/s.
+    fn add_bed_and_stream(world: &mut World, soil: MaterialId, side: f64, r: f64) {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let per = 5;
         let spacing = side / per as f64;
@@ -951,13 +935,34 @@ mod tests {
                 })
                 .unwrap();
         };
-        // A slow bed of 4 layers from z = r and a fast stream of 2 layers 6 mm above it.
         for k in 0..4 * per * per {
             add(k, r, 0.0);
         }
         for k in 0..2 * per * per {
             add(k, 0.016, 2.5);
         }
+    }
+
+    /// Per-particle skins (`BuildMark`): a fast stream falls into a slow bed; after every
+    /// step every touching pair (brute force over all pairs) is in the pair list, and the
+    /// stream's skins are wider than the bed's.
+    #[test]
+    fn per_particle_skins_never_miss_a_touching_pair() {
+        let materials = frictional_paper_table(0.4);
+        let soil = materials.id("soil").unwrap();
+        let r = 1e-3;
+        let side = 0.012;
+        let domain = Domain {
+            min: Vec3::new(0.0, 0.0, -0.01),
+            max: Vec3::new(side, side, 0.1),
+            periodic_x: true,
+            periodic_y: true,
+        };
+        let dt = materials.rayleigh_time_step(soil, r, 0.2);
+        let steel = materials.id("steel").unwrap();
+        let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
+        add_floor(&mut world, steel, 0.03);
+        add_bed_and_stream(&mut world, soil, side, r);
         let mut widest = (f32::INFINITY, 0.0f32);
         let mut most_contacts = 0;
         for step in 0..300 {
@@ -989,6 +994,145 @@ mod tests {
             "the stream's skins ({}) should be wider than the bed's ({})",
             widest.1,
             widest.0
+        );
+    }
+
+    /// Wall candidates (`WallCandidates`): a spray of grains falls onto a static floor of 128
+    /// triangles, past a block moving sideways and a turning paddle. After every step that
+    /// does not call for a rebuild, for every grain and every geometry whose candidates are in
+    /// use, the listed triangles give exactly the contacts a query over the whole mesh gives.
+    /// (Fails if the candidates' reach leaves out the grain's own half skin: checked.)
+    #[test]
+    fn wall_candidates_find_every_contact_a_whole_mesh_query_finds() {
+        use crate::kinematics::RotationSegment;
+        use crate::mesh::generators::{cuboid, plane};
+        let materials = frictional_paper_table(0.4);
+        let soil = materials.id("soil").unwrap();
+        let steel = materials.id("steel").unwrap();
+        let r = 1e-3;
+        let side = 0.012;
+        let domain = Domain {
+            min: Vec3::new(0.0, 0.0, -0.01),
+            max: Vec3::new(side, side, 0.1),
+            periodic_x: true,
+            periodic_y: true,
+        };
+        let dt = materials.rayleigh_time_step(soil, r, 0.2);
+        let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
+        let at = |x: f64, y: f64, z: f64| Pose::translation(x, y, z);
+        let geometries = [
+            (
+                "floor",
+                plane(0.03, 0.03, 8, 8).unwrap(),
+                Motion::stationary(at(-0.009, -0.009, 0.0)),
+            ),
+            (
+                "block",
+                cuboid(0.003, 0.003, 0.004).unwrap(),
+                Motion::translating(at(0.001, 0.004, 0.0005), Vec3::new(1.0, 0.0, 0.0), 0.0)
+                    .unwrap(),
+            ),
+            (
+                "paddle",
+                cuboid(0.008, 0.001, 0.002).unwrap(),
+                Motion::new(
+                    at(0.006, 0.006, 0.001),
+                    Vec::new(),
+                    vec![RotationSegment {
+                        axis: Vec3::z(),
+                        axis_point: Vec3::new(0.004, 0.0005, 0.0),
+                        rpm: 3000.0,
+                        start: 0.0,
+                        stop: 1.0,
+                    }],
+                )
+                .unwrap(),
+            ),
+        ];
+        for (name, mesh, motion) in geometries {
+            world
+                .add_geometry(Geometry {
+                    name: name.into(),
+                    mesh,
+                    motion,
+                    material: steel,
+                })
+                .unwrap();
+        }
+        // A spray: 4 layers of 25 grains from 1.5 mm up, thrown down and sideways at up to
+        // 0.6 m/s.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let spacing = side / 5.0;
+        for k in 0..100 {
+            let mut u = || rng.gen::<f64>();
+            let (x, y, z) = ((k % 5) as f64, ((k / 5) % 5) as f64, (k / 25) as f64);
+            let position = Vec3::new(x + 0.5, y + 0.5, 0.0) * spacing
+                + Vec3::new(0.0, 0.0, 0.0015 + z * spacing);
+            let velocity = Vec3::new(u() - 0.5, u() - 0.5, -u()) * 0.6;
+            let radius = r * (0.8 + 0.2 * u());
+            world
+                .add_particle(ParticleSpec {
+                    position,
+                    velocity,
+                    angular_velocity: Vec3::zeros(),
+                    radius,
+                    material: soil,
+                })
+                .unwrap();
+        }
+        let (mut compared, mut touching, mut live) = (0usize, [0usize; 3], 0usize);
+        let (mut among, mut whole) = (Vec::new(), Vec::new());
+        for step in 0..1500 {
+            world.step();
+            if world.needs_rebuild {
+                continue;
+            }
+            let placed = world.place_geometries(world.time);
+            let p = &world.particles;
+            for i in 0..p.len() {
+                let (geometry_of, triangle_of) = world.walls.of(i);
+                for (g, (geometry, placement)) in world.geometries.iter().zip(&placed).enumerate() {
+                    if !placement.cached {
+                        live += 1;
+                        continue;
+                    }
+                    let listed: Vec<u32> = geometry_of
+                        .iter()
+                        .zip(triangle_of)
+                        .filter(|(&of, _)| of == g as u32)
+                        .map(|(_, &t)| t)
+                        .collect();
+                    let centre = placement
+                        .inverse
+                        .transform_point(&p.position[i].into())
+                        .coords;
+                    among.clear();
+                    whole.clear();
+                    geometry
+                        .mesh
+                        .sphere_contacts_among(centre, p.radius[i], &listed, &mut among);
+                    geometry
+                        .mesh
+                        .sphere_contacts(centre, p.radius[i], &mut whole);
+                    let key = |c: &MeshContact| (c.triangle, c.overlap.to_bits());
+                    let mut a: Vec<_> = among.iter().map(key).collect();
+                    let mut b: Vec<_> = whole.iter().map(key).collect();
+                    a.sort_unstable();
+                    b.sort_unstable();
+                    assert_eq!(a, b, "step {step}, grain {i}, geometry {}", geometry.name);
+                    compared += 1;
+                    touching[g] += b.len();
+                }
+            }
+        }
+        assert!(compared > 50_000, "{compared} comparisons");
+        assert!(
+            touching.iter().all(|&n| n > 100),
+            "contacts compared per geometry: {touching:?}"
+        );
+        assert!(
+            live > 0,
+            "the paddle should outrun its allowance between rebuilds"
         );
     }
 }
