@@ -911,6 +911,24 @@ mod tests {
         }
     }
 
+    /// An empty world of the frictional paper table over a `side` × `side` square, periodic
+    /// in x and y, from z = -10 mm to 100 mm, stepping at 0.2 Rayleigh times of grains of
+    /// radius `r`; with the soil's and the steel's ids.
+    fn periodic_square(side: f64, r: f64) -> (World, MaterialId, MaterialId) {
+        let materials = frictional_paper_table(0.4);
+        let soil = materials.id("soil").unwrap();
+        let steel = materials.id("steel").unwrap();
+        let domain = Domain {
+            min: Vec3::new(0.0, 0.0, -0.01),
+            max: Vec3::new(side, side, 0.1),
+            periodic_x: true,
+            periodic_y: true,
+        };
+        let dt = materials.rayleigh_time_step(soil, r, 0.2);
+        let world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
+        (world, soil, steel)
+    }
+
     /// A slow bed of 4 layers of 25 grains (radius 0.9-1.0 `r`) from z = r over a
     /// `side` × `side` square, and a fast stream of 2 layers 16 mm up falling at 2.5 m/s.
     fn add_bed_and_stream(world: &mut World, soil: MaterialId, side: f64, r: f64) {
@@ -948,19 +966,9 @@ mod tests {
     /// stream's skins are wider than the bed's.
     #[test]
     fn per_particle_skins_never_miss_a_touching_pair() {
-        let materials = frictional_paper_table(0.4);
-        let soil = materials.id("soil").unwrap();
-        let r = 1e-3;
-        let side = 0.012;
-        let domain = Domain {
-            min: Vec3::new(0.0, 0.0, -0.01),
-            max: Vec3::new(side, side, 0.1),
-            periodic_x: true,
-            periodic_y: true,
-        };
-        let dt = materials.rayleigh_time_step(soil, r, 0.2);
-        let steel = materials.id("steel").unwrap();
-        let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
+        let (r, side) = (1e-3, 0.012);
+        let (mut world, soil, steel) = periodic_square(side, r);
+        let domain = world.config.domain;
         add_floor(&mut world, steel, 0.03);
         add_bed_and_stream(&mut world, soil, side, r);
         let mut widest = (f32::INFINITY, 0.0f32);
@@ -1006,19 +1014,8 @@ mod tests {
     fn wall_candidates_find_every_contact_a_whole_mesh_query_finds() {
         use crate::kinematics::RotationSegment;
         use crate::mesh::generators::{cuboid, plane};
-        let materials = frictional_paper_table(0.4);
-        let soil = materials.id("soil").unwrap();
-        let steel = materials.id("steel").unwrap();
-        let r = 1e-3;
-        let side = 0.012;
-        let domain = Domain {
-            min: Vec3::new(0.0, 0.0, -0.01),
-            max: Vec3::new(side, side, 0.1),
-            periodic_x: true,
-            periodic_y: true,
-        };
-        let dt = materials.rayleigh_time_step(soil, r, 0.2);
-        let mut world = World::new(materials, WorldConfig::new(dt, domain)).unwrap();
+        let (r, side) = (1e-3, 0.012);
+        let (mut world, soil, steel) = periodic_square(side, r);
         let at = |x: f64, y: f64, z: f64| Pose::translation(x, y, z);
         let geometries = [
             (
