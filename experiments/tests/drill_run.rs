@@ -55,8 +55,8 @@ fn the_bed_settles_and_is_the_same_fresh_or_stored() {
     // run_drill built the same bed (same seed), bit for bit (only the wall time differs).
     let mut fresh = deep().bed.clone();
     fresh.wall_time_s = bed.wall_time_s;
-    // Seen once (2026-11-25, a loaded machine, not reproduced in 1-3 thread pools or two
-    // concurrent builds): the two builds differed. Say how, should it happen again.
+    // Should the two builds ever differ, say how. (The failure seen on 2026-11-25 was the JSON
+    // step below: the wall time came back an ulp off, before beds stored every float as bits.)
     assert_eq!(
         (fresh.steps, fresh.escaped, fresh.positions.len()),
         (bed.steps, bed.escaped, bed.positions.len()),

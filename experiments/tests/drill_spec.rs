@@ -157,7 +157,7 @@ fn bad_paths_and_values_are_reported_and_leave_the_spec_unchanged() {
 fn the_bed_key_follows_the_bed_inputs_only() {
     let base = DrillSpec::fast();
     let key = bed_key(&base);
-    assert!(key.starts_with("bed-v1-"), "{key}");
+    assert!(key.starts_with("bed-v2-"), "{key}");
     for (path, value) in [
         ("drill.depth", "0.03"),
         ("drill.rpm", "600"),
@@ -220,4 +220,44 @@ fn an_stl_drill_is_checked_against_the_stated_diameter_and_its_tip() {
         .to_stl_binary();
     spec.auger_stl = Some(StlDrill::from_bytes(&lifted, 1.0));
     assert_eq!(invalid_path(&spec), "auger_stl");
+}
+
+/// A stored bed comes back equal to the bed, every float to the last bit. (The first stored
+/// form wrote the surface height and the build's figures as decimals, and serde_json's default
+/// float parser reads some, such as 1.7301083670000001, one ulp off.)
+#[test]
+fn a_stored_bed_comes_back_to_the_last_bit() {
+    use repose_experiments::drill::{SettledBed, SettledBy};
+    let awkward = 1.7301083670000001_f64;
+    let bed = SettledBed {
+        key: "bed-v2-0123456789abcdef".into(),
+        positions: vec![[awkward, -0.0, 1e-300]],
+        velocities: vec![[f64::MIN_POSITIVE, 0.1 + 0.2, -awkward]],
+        angular_velocities: vec![[3.0, 1.0 / 3.0, 7e22]],
+        radii: vec![0.000_5 * awkward],
+        surface_z: 0.05 * awkward,
+        settled: true,
+        settled_by: SettledBy::TimeCap,
+        kinetic_energy_ratio: awkward * 1e-4,
+        simulated_time_s: awkward,
+        steps: 123_456,
+        wall_time_s: awkward,
+        escaped: 7,
+    };
+    let back: SettledBed = serde_json::from_str(&serde_json::to_string(&bed).unwrap()).unwrap();
+    let bits = |b: &SettledBed| {
+        [
+            b.surface_z,
+            b.kinetic_energy_ratio,
+            b.simulated_time_s,
+            b.wall_time_s,
+        ]
+        .map(f64::to_bits)
+    };
+    assert_eq!(bits(&back), bits(&bed));
+    assert_eq!(back, bed);
+    // Through a generic JSON value too (what the worker's bed store and the API pass along).
+    let value = serde_json::to_value(&bed).unwrap();
+    let back: SettledBed = serde_json::from_value(value).unwrap();
+    assert_eq!(back, bed);
 }

@@ -78,12 +78,12 @@ mod tests {
     fn a_written_bed_reads_back_bit_for_bit_under_its_key_only() {
         let dir = tempfile::tempdir().unwrap();
         let mut store = FileBedStore::new(dir.path().join("beds"));
-        store.put(&bed("bed-v1-aaaa"));
-        assert_eq!(store.get("bed-v1-aaaa"), Some(bed("bed-v1-aaaa")));
-        assert!(store.get("bed-v1-bbbb").is_none());
+        store.put(&bed("bed-v2-aaaa"));
+        assert_eq!(store.get("bed-v2-aaaa"), Some(bed("bed-v2-aaaa")));
+        assert!(store.get("bed-v2-bbbb").is_none());
         // A file under one key holding another key's bed is not trusted.
-        std::fs::copy(store.path("bed-v1-aaaa"), store.path("bed-v1-cccc")).unwrap();
-        assert!(store.get("bed-v1-cccc").is_none());
+        std::fs::copy(store.path("bed-v2-aaaa"), store.path("bed-v2-cccc")).unwrap();
+        assert!(store.get("bed-v2-cccc").is_none());
         // No temporary files are left behind.
         let names: Vec<_> = std::fs::read_dir(store.dir()).unwrap().collect();
         assert_eq!(names.len(), 2);
@@ -93,9 +93,9 @@ mod tests {
     fn a_missing_or_foreign_bed_is_a_miss() {
         let dir = tempfile::tempdir().unwrap();
         let mut store = FileBedStore::new(dir.path().join("beds"));
-        assert!(store.get("bed-v1-0000").is_none(), "missing");
+        assert!(store.get("bed-v2-0000").is_none(), "missing");
         std::fs::create_dir_all(store.dir()).unwrap();
-        std::fs::write(store.path("bed-v1-0000"), "not json").unwrap();
-        assert!(store.get("bed-v1-0000").is_none(), "unreadable");
+        std::fs::write(store.path("bed-v2-0000"), "not json").unwrap();
+        assert!(store.get("bed-v2-0000").is_none(), "unreadable");
     }
 }

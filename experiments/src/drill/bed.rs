@@ -24,9 +24,11 @@ use super::run::{build_error, DrillError};
 use super::spec::DrillSpec;
 use crate::progress::Control;
 
-/// Version of the bed recipe; part of every key, so a change to how beds are built never
-/// reuses an old bed.
-pub const BED_FORMAT: u32 = 1;
+/// Version of the bed recipe and of its stored form; part of every key, so a change to how
+/// beds are built or stored never reuses an old bed. 2: every float is stored as its bits
+/// (in 1 the surface height and the build's figures were decimal, and one could come back an
+/// ulp off).
+pub const BED_FORMAT: u32 = 2;
 
 /// Progress of the bed build.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,8 +54,9 @@ pub enum SettledBy {
     TimeCap,
 }
 
-/// A settled bed: the grains (bit-exact through serde: floats are stored as their IEEE bits,
-/// so a stored bed gives the same run as a fresh one) and how it was made.
+/// A settled bed: the grains and how it was made, bit-exact through serde (every float is
+/// stored as its IEEE bits, so a stored bed gives the same run as a fresh one and compares
+/// equal to it).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SettledBed {
     /// [`bed_key`] of the spec that built it.
@@ -67,16 +70,32 @@ pub struct SettledBed {
     #[serde(with = "bits1")]
     pub radii: Vec<f64>,
     /// Median surface height (probe height field, away from the walls), m above the floor.
+    #[serde(with = "bits")]
     pub surface_z: f64,
     /// Whether a settle criterion was met (else the time cap ended the build).
     pub settled: bool,
     pub settled_by: SettledBy,
+    #[serde(with = "bits")]
     pub kinetic_energy_ratio: f64,
+    #[serde(with = "bits")]
     pub simulated_time_s: f64,
     pub steps: u64,
+    #[serde(with = "bits")]
     pub wall_time_s: f64,
     /// Grains that left the bin while it was filled (lost over the walls).
     pub escaped: u64,
+}
+
+mod bits {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_u64(x.to_bits())
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(f64::from_bits(u64::deserialize(d)?))
+    }
 }
 
 mod bits3 {
