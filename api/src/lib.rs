@@ -394,10 +394,14 @@ pub struct JobView {
 // Worker protocol
 // ---------------------------------------------------------------------------------------------
 
-/// A worker introduces itself; re-registering with the same `instance_id` updates the record.
+/// A worker introduces itself when it starts; registering again with the same `instance_id`
+/// updates the record. Because a registration means the worker has (re)started, any job still
+/// leased to that `instance_id` is not running any more and goes back to the queue at once.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct WorkerRegistration {
-    /// Chosen by the worker at start-up; identifies it in claims and run records.
+    /// Chosen by the worker at start-up; identifies it in claims and run records. A worker that
+    /// keeps its id across restarts (`repose up`'s local workers, `repose worker --instance-id`)
+    /// gets the jobs it held back in the queue when it comes back, instead of after their lease.
     pub instance_id: Uuid,
     /// Host name, for people reading the run table.
     pub host: String,

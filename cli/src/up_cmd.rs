@@ -3,7 +3,9 @@
 //! analysis.
 //!
 //! Shutdown order matters: workers stop first (they release the jobs they hold, so nothing is
-//! half-done in the database), then the server drains and closes the database.
+//! half-done in the database), then the server drains and closes the database. After a crash
+//! or a kill there was no such release: the local workers keep their ids from one start to the
+//! next, and registering again puts the jobs they held back in the queue.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -171,8 +173,9 @@ async fn up(config: UpConfig) -> Result<()> {
 
     let (stop_workers, workers_stopped) = watch::channel(false);
     let mut workers = Vec::with_capacity(config.workers);
-    for _ in 0..config.workers {
+    for index in 0..config.workers {
         let mut worker = WorkerConfig::new(url.clone());
+        worker.instance_id = Some(local_worker_id(&tokens.worker, index));
         worker.token = Some(tokens.worker.clone());
         worker.threads = config.threads;
         worker.artifacts_dir = config.artifacts.clone();
@@ -225,6 +228,18 @@ async fn up(config: UpConfig) -> Result<()> {
         .context("server task failed")?
         .context("server failed")?;
     outcome
+}
+
+/// The id of local worker `index`: the same every time `repose up` starts on this database
+/// with its tokens file, so when it comes back after a crash or a kill the jobs its workers
+/// held go back to the queue as they register (see `WorkerRegistration`), instead of waiting
+/// out their lease. Derived from the local worker token (a name-based UUID, which does not
+/// reveal the token), so a new token, which could not re-register the old ids, gets new ones.
+fn local_worker_id(worker_token: &str, index: usize) -> uuid::Uuid {
+    uuid::Uuid::new_v5(
+        &uuid::Uuid::NAMESPACE_OID,
+        format!("repose up local worker {index} {worker_token}").as_bytes(),
+    )
 }
 
 /// Submits the batch files in order, follows each to its end and prints its analysis.

@@ -44,6 +44,12 @@ pub struct WorkerArgs {
         default_value_t = 300.0
     )]
     pub checkpoint_every: f64,
+    /// Register under this id (a UUID) instead of a random one each start. Give a worker that
+    /// a service manager restarts its own fixed id, and the jobs it held when it crashed or was
+    /// killed go back to the queue as soon as it starts again, not when their lease runs out.
+    /// Two workers running at the same time must not share an id.
+    #[arg(long, env = "REPOSE_WORKER_ID", value_name = "UUID")]
+    pub instance_id: Option<uuid::Uuid>,
     /// Exit (status 0) once no job was available for SECONDS, e.g. so a batch-scheduler task
     /// ends when the queue is empty instead of holding its allocation. Default: wait forever.
     #[arg(long, env = "REPOSE_EXIT_WHEN_IDLE", value_name = "SECONDS")]
@@ -77,6 +83,7 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
     config.exit_when_idle = exit_when_idle;
     config.token = args.token.clone();
     config.slots = args.slots;
+    config.instance_id = args.instance_id;
     config.threads = threads;
     config.artifacts_dir = args.artifacts.clone();
     config.bed_cache = args.bed_cache.clone();

@@ -564,11 +564,19 @@ async fn register_worker(
     submit::check_name_length("version", &registration.version)?;
     repose_api::check_worker_version(state.config.release, &registration.version)
         .map_err(|refusal| AppError::invalid("version", refusal.to_string()))?;
-    state
+    let released = state
         .db
         .register_worker(&registration, &caller.name)
         .await?;
     tracing::info!(worker = %registration.instance_id, host = %registration.host, "worker registered");
+    if released > 0 {
+        tracing::info!(worker = %registration.instance_id, jobs = released,
+            "jobs the worker held before it restarted went back to the queue");
+        for _ in 0..released {
+            state.metrics.released();
+        }
+        orchestrate::jobs_available(&state);
+    }
     Ok(Json(WorkerRegistered {
         worker_id: registration.instance_id,
         lease_s: state.config.lease.as_secs_f64(),

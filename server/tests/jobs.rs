@@ -252,6 +252,74 @@ async fn expired_lease_is_re_leased_and_ends_with_exactly_one_result() {
     server.stop().await;
 }
 
+/// A worker registers when it starts: jobs still leased to its id are ones it no longer runs
+/// (it crashed or was killed), so they go back to the queue at once, their attempt not
+/// counted, and the old leases are dead. Another worker's lease is untouched.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_registering_again_puts_the_jobs_it_held_back_in_the_queue_at_once() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |config| {
+        config.lease = Duration::from_secs(3600);
+    })
+    .await;
+    let batch = server
+        .submit(&batch_request(
+            json!({"type": "explicit", "points": [[0.2, 0.3], [0.6, 0.3], [0.4, 0.9], [0.3, 0.6]]}),
+            "linear",
+            1,
+        ))
+        .await;
+    let restarted = server.register_as(Uuid::new_v4()).await;
+    let other = server.register().await;
+    let held = [
+        server.claim(restarted, 0.0).await.unwrap(),
+        server.claim(restarted, 0.0).await.unwrap(),
+    ];
+    let others = server.claim(other, 0.0).await.unwrap();
+
+    // The same id registers again, as after a restart.
+    server.register_as(restarted).await;
+    let workers = server.get("/v1/workers").await.1;
+    let running = |id: Uuid| {
+        workers
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|w| w["id"] == id.to_string())
+            .unwrap()["running_jobs"]
+            .clone()
+    };
+    assert_eq!(running(restarted), 0, "{workers}");
+    assert_eq!(running(other), 1, "{workers}");
+    for job in &held {
+        let (status, body) = server
+            .post(
+                &format!("/v1/jobs/{}/heartbeat", job.job_id),
+                &json!({"lease_token": job.lease_token, "progress": 0.5}),
+            )
+            .await;
+        assert_eq!(status, StatusCode::CONFLICT, "an old lease is dead: {body}");
+    }
+    // The two released jobs and the one never claimed, each as a first attempt; the other
+    // worker's job stays with it.
+    let mut again = Vec::new();
+    while let Some(job) = server.claim(restarted, 0.0).await {
+        assert_eq!(job.attempt, 1, "a release is not an attempt");
+        again.push(job);
+    }
+    assert_eq!(again.len(), 3);
+    for job in &held {
+        assert!(again.iter().any(|j| j.run_id == job.run_id));
+    }
+    assert!(again.iter().all(|j| j.run_id != others.run_id));
+    for job in again.iter().chain([&others]) {
+        let (status, body) = server.complete(job).await;
+        assert_eq!(status, StatusCode::OK, "{body}");
+    }
+    assert_eq!(server.status(batch.id).await.summary.counts.completed, 4);
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn restart_mid_batch_loses_nothing() {
     let (_dir, db) = temp_db();

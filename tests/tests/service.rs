@@ -376,15 +376,17 @@ fn repose_up(
 
 #[test]
 fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_batch() {
-    // `repose up` is killed (SIGKILL) while its workers hold the batch's jobs; started again on
-    // the same database with --exit-when-done and nothing to submit, it follows the unfinished
-    // batch to its end (the leases of the killed workers expire after 2 s) and exits cleanly.
+    // `repose up` is killed (SIGKILL) while its workers hold the batch's jobs on hour-long
+    // leases; started again on the same database with --exit-when-done and nothing to submit,
+    // it follows the unfinished batch to its end and exits cleanly. Its local workers come back
+    // under the same ids, so the jobs they held return to the queue as they register: the
+    // batch finishes in seconds, not after the leases run out.
     let dir = tempfile::tempdir().unwrap();
     let batch_file = dir.path().join("replay.json");
     std::fs::write(&batch_file, replay_batch(3, 2.0).to_string()).unwrap();
     let db = dir.path().join("up.db");
     let mut first = up_command(&db, 1)
-        .args(["--lease-s", "2", "--submit"])
+        .args(["--lease-s", "3600", "--submit"])
         .arg(&batch_file)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
@@ -400,9 +402,32 @@ fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_bat
     first.kill().unwrap();
     first.wait().unwrap();
 
-    let out = up_command(&db, 1).arg("--exit-when-done").output().unwrap();
-    let stdout = common::stdout(&out);
-    assert!(out.status.success(), "{stdout}\n{}", common::stderr(&out));
+    // Output to files: a pipe nobody reads while we wait could fill and stall the process.
+    let (out_path, err_path) = (dir.path().join("out.txt"), dir.path().join("err.txt"));
+    let mut second = up_command(&db, 1)
+        .args(["--lease-s", "3600", "--exit-when-done"])
+        .stdout(std::fs::File::create(&out_path).unwrap())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .unwrap();
+    let read = |path: &std::path::Path| std::fs::read_to_string(path).unwrap_or_default();
+    // Three runs of 2 s: far less than this unless a job waits out its lease.
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while second.try_wait().unwrap().is_none() {
+        if std::time::Instant::now() > deadline {
+            second.kill().unwrap();
+            second.wait().unwrap();
+            panic!(
+                "still waiting after 120 s: a job held by the killed workers waits out its lease\n{}\n{}",
+                read(&out_path),
+                read(&err_path)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let status = second.wait().unwrap();
+    let stdout = read(&out_path);
+    assert!(status.success(), "{stdout}\n{}", read(&err_path));
     assert!(
         stdout.contains("following 1 unfinished batch(es)"),
         "{stdout}"
@@ -817,4 +842,13 @@ fn repose_backup_mid_batch_restores_to_a_server_that_finishes_the_batch() {
     }
     let analysis = service.get(&format!("/v1/batches/{batch}/analysis"));
     assert_eq!(analysis["runs_used"], 8);
+}
+
+#[test]
+fn a_worker_id_that_is_not_a_uuid_is_refused_naming_the_flag() {
+    let out = common::repose(&["worker", "--instance-id", "worker-7"]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = common::stderr(&out);
+    assert!(stderr.contains("--instance-id"), "{stderr}");
+    assert!(stderr.contains("worker-7"), "{stderr}");
 }

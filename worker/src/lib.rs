@@ -60,6 +60,10 @@ pub struct WorkerConfig {
     pub threads: usize,
     /// Host name reported at registration.
     pub host: String,
+    /// The id this worker registers under; none: a fresh random one each start. A worker that
+    /// keeps one id across restarts gets the jobs it held before a crash or kill put back in
+    /// the queue when it registers again, instead of after their lease runs out.
+    pub instance_id: Option<Uuid>,
     /// Long-poll wait of each claim.
     pub claim_wait: Duration,
     /// Longest pause between retries when the server is unreachable.
@@ -91,6 +95,7 @@ impl WorkerConfig {
             slots: 1,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             host: hostname(),
+            instance_id: None,
             claim_wait: Duration::from_secs(20),
             max_backoff: Duration::from_secs(30),
             artifacts_dir: None,
@@ -177,7 +182,7 @@ pub async fn run(
     }
 
     let registration = WorkerRegistration {
-        instance_id: Uuid::new_v4(),
+        instance_id: config.instance_id.unwrap_or_else(Uuid::new_v4),
         host: config.host.clone(),
         threads: u32::try_from(config.threads).unwrap_or(u32::MAX),
         version: config.version.clone(),

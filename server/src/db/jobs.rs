@@ -52,11 +52,16 @@ impl Db {
     /// Records (or refreshes) a worker on behalf of the worker token `token`. A worker id
     /// registered by another token is [`DbError::Forbidden`]: worker rows belong to the token
     /// that made them.
+    ///
+    /// A worker registers when it starts, so a job still leased to its instance id is one the
+    /// worker ran before it was stopped or killed and is not running any more: it goes back to
+    /// the queue at once, as if released (its attempt not counted), rather than waiting out its
+    /// lease. Returns how many jobs went back.
     pub async fn register_worker(
         &self,
         worker: &WorkerRegistration,
         token: &str,
-    ) -> Result<(), DbError> {
+    ) -> Result<u64, DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
         let result = async {
@@ -85,7 +90,7 @@ impl Db {
                     worker.instance_id
                 )));
             }
-            Ok(())
+            release_leases_of(&mut tx, &worker.instance_id.to_string(), now).await
         }
         .await;
         tx.finish(result).await
@@ -724,6 +729,31 @@ pub(super) async fn fail_in(
         batch_finished,
         requeued: !dead,
     })
+}
+
+/// Returns every job leased to `worker_id` to the queue, as [`release_in`] does for one.
+async fn release_leases_of(tx: &mut WriteTx, worker_id: &str, now: i64) -> Result<u64, DbError> {
+    sqlx::query(
+        "UPDATE leases SET outcome = 'released', ended_at = ?
+         WHERE token IN (SELECT lease_token FROM jobs WHERE worker_id = ? AND state = 'leased')",
+    )
+    .bind(now)
+    .bind(worker_id)
+    .execute(&mut **tx)
+    .await?;
+    let released = sqlx::query(
+        "UPDATE jobs SET state = 'queued', attempts = MAX(attempts - 1, 0), lease_token = NULL,
+                         lease_expires_at = NULL, worker_id = NULL, available_at = ?,
+                         updated_at = ?
+         WHERE worker_id = ? AND state = 'leased'",
+    )
+    .bind(now)
+    .bind(now)
+    .bind(worker_id)
+    .execute(&mut **tx)
+    .await?
+    .rows_affected();
+    Ok(released)
 }
 
 pub(super) async fn release_in(

@@ -178,7 +178,11 @@ impl TestServer {
     }
 
     pub async fn register(&self) -> Uuid {
-        let worker = Uuid::new_v4();
+        self.register_as(Uuid::new_v4()).await
+    }
+
+    /// Registers a worker under `worker` (again, if it registered before).
+    pub async fn register_as(&self, worker: Uuid) -> Uuid {
         let registration = WorkerRegistration {
             instance_id: worker,
             host: "test-host".into(),
