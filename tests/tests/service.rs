@@ -742,7 +742,30 @@ fn a_two_target_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verifie
         started.elapsed().as_secs_f64()
     );
     eprintln!("{:#}", view["result"]);
-    assert_eq!(view["status"], "finished", "{view:#}");
+    if view["status"] != "finished" {
+        // Say which runs were lost and why, not only that the campaign stopped.
+        let mut lost = String::new();
+        for batch in view["batch_list"].as_array().into_iter().flatten() {
+            let runs = service.get(&format!(
+                "/v1/batches/{}/runs",
+                batch["batch_id"].as_str().unwrap()
+            ));
+            for run in runs.as_array().into_iter().flatten() {
+                if run["status"] != "completed" {
+                    lost += &format!(
+                        "{} batch {} row {}: {} {} {}\n",
+                        batch["stage"],
+                        batch["index"],
+                        run["design_row"],
+                        run["status"],
+                        run["factors"],
+                        run["last_error"]
+                    );
+                }
+            }
+        }
+        panic!("campaign {}:\n{lost}{view:#}", view["status"]);
+    }
     let result = &view["result"];
     let checks = result["targets"].as_array().unwrap();
     let responses: Vec<&str> = checks
