@@ -507,6 +507,12 @@ pub struct Failure {
     /// heap never settled): the run is marked dead at once instead of retried.
     #[serde(default)]
     pub permanent: bool,
+    /// Rerunning with this seed cannot help, but another seed may (e.g. grains arched over
+    /// the funnel's outlet in this pour): the server gives the run a new seed and queues it at
+    /// once, while it has attempts left; the run keeps the seed that gave its result. Not
+    /// together with `permanent`.
+    #[serde(default)]
+    pub another_seed: bool,
 }
 
 /// Give a job back without it counting as an attempt (e.g. the worker is shutting down).

@@ -206,12 +206,15 @@ pub enum ExperimentError {
         message: String,
     },
     /// The experiment ran but gave no usable result. Rerunning the same spec and seed gives the
-    /// same outcome, so a job server should not retry it.
+    /// same outcome, so a job server should not retry it as it was.
     #[error("{message}")]
     NoResult {
         message: String,
         /// The kind's full result document, for the run record.
         details: Value,
+        /// The failure is a matter of this seed's chance, not of the spec: a run with another
+        /// seed may give a result (grains that arched over the funnel's outlet in this pour).
+        another_seed_may_help: bool,
     },
     /// The progress callback cancelled the run.
     #[error("cancelled")]
@@ -229,6 +232,7 @@ impl ExperimentError {
     /// preset met when running is this machine's catalog lacking it (a worker of another
     /// build may have it), so it is not permanent; at submission the server refuses both.
     pub fn is_permanent(&self) -> bool {
+        // (A failure another seed may cure is permanent for this seed all the same.)
         match self {
             ExperimentError::InvalidSpec { .. } | ExperimentError::NoResult { .. } => true,
             ExperimentError::UnknownKind { .. }
@@ -236,6 +240,18 @@ impl ExperimentError {
             | ExperimentError::Cancelled
             | ExperimentError::Local { .. } => false,
         }
+    }
+
+    /// Whether the same spec with another seed may give a result where this run gave none: a
+    /// job server may then run it again under a new seed.
+    pub fn another_seed_may_help(&self) -> bool {
+        matches!(
+            self,
+            ExperimentError::NoResult {
+                another_seed_may_help: true,
+                ..
+            }
+        )
     }
 }
 
@@ -393,7 +409,9 @@ pub fn run_experiment_with_stores(
                             run.result.message.as_deref().unwrap_or("no heap measured")
                         ),
                         details,
-                    })
+                        // Whether grains arch over the outlet is a matter of the pour.
+                        another_seed_may_help: status == RunStatus::HeldUp,
+                    });
                 }
             }
             let mut metrics = BTreeMap::new();
@@ -472,6 +490,7 @@ pub fn run_experiment_with_stores(
                             run.result.message.as_deref().unwrap_or("no hole measured")
                         ),
                         details,
+                        another_seed_may_help: false,
                     })
                 }
             }
@@ -525,6 +544,7 @@ pub fn run_experiment_with_stores(
                         run.result.message.as_deref().unwrap_or("no fit")
                     ),
                     details,
+                    another_seed_may_help: false,
                 });
             }
             Ok(Outcome {
@@ -546,6 +566,7 @@ pub fn run_experiment_with_stores(
                     ExperimentError::NoResult {
                         message: e.to_string(),
                         details: Value::Null,
+                        another_seed_may_help: false,
                     }
                 }
             })?;
@@ -808,5 +829,7 @@ mod tests {
         missing["values"]["a"] = json!(1.5);
         let err = run_experiment("table_lookup", &missing, 3, &mut |_| Control::Continue);
         assert!(matches!(err, Err(ExperimentError::NoResult { .. })));
+        let err = err.unwrap_err();
+        assert!(err.is_permanent() && !err.another_seed_may_help());
     }
 }

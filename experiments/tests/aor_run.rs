@@ -181,6 +181,17 @@ fn an_arch_over_the_outlet_makes_a_held_up_run_without_an_angle() {
     assert_eq!(r.angle_deg, None);
     let message = r.message.as_deref().unwrap();
     assert!(message.contains("still in the funnel"), "{message}");
+    // Through the catalog (what a worker runs): no result for this seed, but whether grains
+    // arch is the pour's chance, so a job server may try another seed.
+    let err = repose_experiments::catalog::run_experiment(
+        "aor",
+        &serde_json::to_value(&spec).unwrap(),
+        spec.seed,
+        &mut |_| Control::Continue,
+    )
+    .unwrap_err();
+    assert!(err.is_permanent() && err.another_seed_may_help(), "{err:?}");
+    assert!(err.to_string().contains("HeldUp"), "{err}");
     // The same heap with the limit lifted is judged on its own terms again.
     spec.set("max_held_up_fraction", "1").unwrap();
     let r = run_aor(&spec, &mut |_| Control::Continue).unwrap().result;

@@ -23,7 +23,7 @@ use tokio::time::Instant;
 use uuid::Uuid;
 
 use crate::auth::{authorize, Access, Caller};
-use crate::db::ReadScope;
+use crate::db::{ReadScope, Rerun};
 use crate::error::AppError;
 use crate::{analysis, campaigns, orchestrate, submit, AppState};
 
@@ -682,20 +682,28 @@ async fn fail_job(
             format!("at most {MAX_ERROR_BYTES} bytes of error text"),
         ));
     }
+    let max_attempts = state.config.max_attempts;
+    let rerun = match (failure.permanent, failure.another_seed) {
+        (true, true) => {
+            return Err(AppError::invalid(
+                "another_seed",
+                "a failure is either permanent or worth another seed, not both",
+            ))
+        }
+        // Same spec and seed, same outcome: not worth a retry.
+        (true, false) => Rerun::Never,
+        (false, true) => Rerun::WithAnotherSeed {
+            max_attempts,
+            next_seed: repose_doe::design::next_seed,
+        },
+        (false, false) => Rerun::Retry {
+            max_attempts,
+            backoff: state.config.retry_backoff,
+        },
+    };
     let update = state
         .db
-        .fail(
-            job_id,
-            failure.lease_token,
-            &failure.error,
-            // A permanent failure (same spec and seed, same outcome) is not worth a retry.
-            if failure.permanent {
-                0
-            } else {
-                state.config.max_attempts
-            },
-            state.config.retry_backoff,
-        )
+        .fail(job_id, failure.lease_token, &failure.error, rerun)
         .await?;
     state.metrics.failed();
     tracing::warn!(job = %job_id, error = %failure.error, status = ?update.status, "job failed");

@@ -500,6 +500,156 @@ async fn failures_retry_then_die_and_the_batch_still_finishes() {
     server.stop().await;
 }
 
+/// A failure of the seed's chance (`another_seed`, e.g. grains arched over the funnel's
+/// outlet): the run is queued again at once, without the retry back-off, under the next seed,
+/// which its result then carries; it dies when the attempts run out like any other failure.
+/// A failure cannot be both permanent and worth another seed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failure_another_seed_may_cure_runs_again_at_once_under_a_new_seed() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |config| {
+        config.max_attempts = 3;
+        config.retry_backoff = Duration::from_secs(3600);
+    })
+    .await;
+    let batch = server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 1))
+        .await;
+    let worker = server.register().await;
+    let fail = |job: &repose_api::ClaimResponse, extra: Value| {
+        let mut body = json!({"lease_token": job.lease_token, "error": "held up: an arch"});
+        body.as_object_mut()
+            .unwrap()
+            .extend(extra.as_object().unwrap().clone());
+        (format!("/v1/jobs/{}/fail", job.job_id), body)
+    };
+
+    let first = server.claim(worker, 0.0).await.unwrap();
+    let (path, body) = fail(&first, json!({"permanent": true, "another_seed": true}));
+    let (status, reply) = server.post(&path, &body).await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{reply}");
+    assert_eq!(reply["field"], "another_seed", "{reply}");
+
+    let (path, body) = fail(&first, json!({"another_seed": true}));
+    let (status, reply) = server.post(&path, &body).await;
+    assert_eq!(status, StatusCode::OK, "{reply}");
+    assert_eq!(reply["status"], "queued");
+    // At once (the back-off is an hour), the same run under the next seed. (Claims take the
+    // longest-waiting job first; the others met on the way are held, finished at the end.)
+    async fn claim_run(
+        server: &TestServer,
+        worker: Uuid,
+        run_id: Uuid,
+        held: &mut Vec<repose_api::ClaimResponse>,
+    ) -> repose_api::ClaimResponse {
+        loop {
+            let job = server.claim(worker, 0.0).await.expect("the run is queued");
+            if job.run_id == run_id {
+                return job;
+            }
+            held.push(job);
+        }
+    }
+    let mut held = Vec::new();
+    let again = claim_run(&server, worker, first.run_id, &mut held).await;
+    assert_eq!(again.attempt, 2);
+    assert_eq!(again.seed, repose_doe::design::next_seed(first.seed));
+    assert_ne!(again.seed, first.seed);
+    let (status, reply) = server.complete(&again).await;
+    assert_eq!(status, StatusCode::OK, "{reply}");
+    let runs = server.runs(batch.id).await;
+    let run = runs.iter().find(|r| r.id == first.run_id).unwrap();
+    assert_eq!(run.seed, again.seed, "the result's seed is the run's");
+    assert_eq!(
+        run.metrics.as_ref().unwrap()["angle_deg"],
+        common::angle_for(&again.spec, again.seed)
+    );
+
+    // A run that fails under every seed dies after max_attempts (3) like any other.
+    let doomed = match server.claim(worker, 0.0).await {
+        Some(job) => job,
+        None => held.pop().expect("a run left"),
+    };
+    let mut seeds = vec![doomed.seed];
+    let mut job = doomed.clone();
+    loop {
+        let (path, body) = fail(&job, json!({"another_seed": true}));
+        let (status, reply) = server.post(&path, &body).await;
+        assert_eq!(status, StatusCode::OK, "{reply}");
+        if reply["status"] == "dead" {
+            break;
+        }
+        job = claim_run(&server, worker, doomed.run_id, &mut held).await;
+        seeds.push(job.seed);
+    }
+    assert_eq!(job.attempt, 3);
+    seeds.dedup();
+    assert_eq!(seeds.len(), 3, "three attempts, three seeds: {seeds:?}");
+    while let Some(job) = server.claim(worker, 0.0).await {
+        held.push(job);
+    }
+    for job in &held {
+        let (status, _) = server.complete(job).await;
+        assert_eq!(status, StatusCode::OK);
+    }
+    let status = server.status(batch.id).await;
+    assert_eq!(status.summary.counts.dead, 1);
+    assert_eq!(status.summary.counts.completed, 3);
+    server.stop().await;
+}
+
+/// A late result of an expired lease is kept only while it is of the run's seed: once a later
+/// attempt failed and the run took a new seed, the old lease's result is refused (409) and its
+/// heartbeat tells it to stop.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_result_of_the_seed_before_a_new_one_is_refused() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |config| {
+        config.lease = Duration::from_millis(400);
+    })
+    .await;
+    server
+        .submit(&batch_request(
+            json!({"type": "explicit", "points": [[0.2, 0.3], [0.6, 0.3], [0.4, 0.9], [0.3, 0.6]]}),
+            "linear",
+            1,
+        ))
+        .await;
+    let slow = server.register().await;
+    let fast = server.register().await;
+    let mut old = Vec::new();
+    for _ in 0..4 {
+        old.push(server.claim(slow, 0.0).await.unwrap());
+    }
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let second = server.claim(fast, 0.0).await.unwrap();
+    assert_eq!(second.attempt, 2);
+    let first = old.iter().find(|j| j.run_id == second.run_id).unwrap();
+    assert_eq!(second.seed, first.seed);
+    let (status, reply) = server
+        .post(
+            &format!("/v1/jobs/{}/fail", second.job_id),
+            &json!({"lease_token": second.lease_token, "error": "an arch", "another_seed": true}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{reply}");
+    let (status, reply) = server.complete(first).await;
+    assert_eq!(
+        status,
+        StatusCode::CONFLICT,
+        "a result of the old seed: {reply}"
+    );
+    let (status, reply) = server
+        .post(
+            &format!("/v1/jobs/{}/heartbeat", first.job_id),
+            &json!({"lease_token": first.lease_token, "progress": 0.9}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{reply}");
+    assert_eq!(reply["cancel"], true);
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn long_poll_wakes_on_submission_and_cancel_stops_workers() {
     let (_dir, db) = temp_db();

@@ -70,6 +70,7 @@ async fn batch_in_every_state(server: &TestServer) -> (uuid::Uuid, u32) {
         lease_token: doomed.lease_token,
         error: NASTY_ERROR.into(),
         permanent: true,
+        another_seed: false,
     };
     let (status, body) = server
         .post(

@@ -462,10 +462,17 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
             .map_or(JobEnd::Abandoned, |()| JobEnd::Completed)
         }
         Ok(Err(error)) => {
-            // A bad spec or a run without a result fails the job; a failure of this worker's
-            // own (it cannot start its threads) or a cancel hands the job back.
-            let permanent = error.is_permanent();
-            report_failure(context, &job, error.to_string(), permanent).await
+            // A bad spec or a run without a result fails the job (a run that failed by its
+            // seed's chance may run again under another); a failure of this worker's own (it
+            // cannot start its threads) or a cancel hands the job back.
+            let rerun = if error.another_seed_may_help() {
+                Rerun::WithAnotherSeed
+            } else if error.is_permanent() {
+                Rerun::Never
+            } else {
+                Rerun::Retry
+            };
+            report_failure(context, &job, error.to_string(), rerun).await
         }
         Err(join_error) => {
             let message = if join_error.is_panic() {
@@ -473,22 +480,34 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
             } else {
                 format!("the simulation task stopped: {join_error}")
             };
-            report_failure(context, &job, message, false).await
+            report_failure(context, &job, message, Rerun::Retry).await
         }
     }
+}
+
+/// Whether a failed job is worth running again, as the worker tells the server.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Rerun {
+    /// As it was (after a back-off): the failure may not happen again.
+    Retry,
+    /// Never: the same spec gives the same failure whatever the seed.
+    Never,
+    /// Under another seed: this seed gives the same failure, another may not.
+    WithAnotherSeed,
 }
 
 async fn report_failure(
     context: &SlotContext,
     job: &ClaimResponse,
     error: String,
-    permanent: bool,
+    rerun: Rerun,
 ) -> JobEnd {
-    tracing::warn!(job = %job.job_id, %error, permanent, "job failed");
+    tracing::warn!(job = %job.job_id, %error, ?rerun, "job failed");
     let failure = Failure {
         lease_token: job.lease_token,
         error,
-        permanent,
+        permanent: rerun == Rerun::Never,
+        another_seed: rerun == Rerun::WithAnotherSeed,
     };
     deliver(context, job.job_id, "fail", |c| {
         let failure = failure.clone();

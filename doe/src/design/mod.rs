@@ -50,7 +50,9 @@ pub use factorial::{full_factorial, MAX_FULL_FACTORIAL_FACTORS};
 pub use plackett_burman::{
     plackett_burman, smallest_plackett_burman_runs, PLACKETT_BURMAN_RUN_SIZES,
 };
-pub use randomize::{random_run_order, replicate, shuffle_with_seed, splitmix64, ReplicatedRun};
+pub use randomize::{
+    next_seed, random_run_order, replicate, shuffle_with_seed, splitmix64, ReplicatedRun,
+};
 pub use steepest::{
     direction_toward, round_to_decimals, PathClamp, PathDirection, SteepestPath, SteepestPathSpec,
 };

@@ -37,6 +37,13 @@ pub fn splitmix64(state: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The seed a run is given when it runs again under another seed (a job server's answer to a
+/// failure of this seed's chance): the next output of a SplitMix64 generator at state `seed`,
+/// unrelated-looking to `seed` and to the seeds before it.
+pub fn next_seed(seed: u64) -> u64 {
+    splitmix64(seed.wrapping_add(SPLITMIX_GAMMA))
+}
+
 /// The seed of the `index`-th run of a campaign: `splitmix64(base_seed + (index + 1)·γ)`, i.e.
 /// the `index`-th output of a SplitMix64 generator started at `base_seed`. Because the state
 /// step is odd and the output function is a bijection, indices below 2^64 never share a seed.

@@ -2,6 +2,23 @@
 
 use super::*;
 
+/// Whether and how a failed job runs again.
+#[derive(Debug, Clone, Copy)]
+pub enum Rerun {
+    /// Never: the run is dead at once.
+    Never,
+    /// As it was, after `backoff` doubled per attempt so far, until `max_attempts`.
+    Retry {
+        max_attempts: u32,
+        backoff: Duration,
+    },
+    /// At once under the seed `next_seed` makes of the run's current one, until `max_attempts`.
+    WithAnotherSeed {
+        max_attempts: u32,
+        next_seed: fn(u64) -> u64,
+    },
+}
+
 /// What a sweep of expired leases did.
 #[derive(Debug, Clone, Default)]
 pub struct Expired {
@@ -276,11 +293,10 @@ impl Db {
         job_id: Uuid,
         token: Uuid,
         error: &str,
-        max_attempts: u32,
-        backoff: Duration,
+        rerun: Rerun,
     ) -> Result<JobUpdate, DbError> {
         let mut tx = self.begin_write().await?;
-        let result = fail_in(&mut tx, job_id, token, error, max_attempts, backoff).await;
+        let result = fail_in(&mut tx, job_id, token, error, rerun).await;
         tx.finish(result).await
     }
 
@@ -688,22 +704,52 @@ pub(super) async fn fail_in(
     job_id: Uuid,
     token: Uuid,
     error: &str,
-    max_attempts: u32,
-    backoff: Duration,
+    rerun: Rerun,
 ) -> Result<JobUpdate, DbError> {
     let now = now_ms();
     let found = lookup_lease(tx, job_id, token).await?;
     if !found.is_current(token) {
         return Err(found.stale_conflict());
     }
+    let (max_attempts, retry_at) = match rerun {
+        Rerun::Never => (0, now),
+        Rerun::Retry {
+            max_attempts,
+            backoff,
+        } => {
+            let exponent =
+                u32::try_from(found.attempts.saturating_sub(1).clamp(0, 20)).unwrap_or(20);
+            let retry_at = now.saturating_add(duration_ms(backoff).saturating_mul(1 << exponent));
+            (max_attempts, retry_at)
+        }
+        Rerun::WithAnotherSeed { max_attempts, .. } => (max_attempts, now),
+    };
     let dead = found.attempts >= i64::from(max_attempts);
     let state = if dead {
         JobState::Dead
     } else {
         JobState::Queued
     };
-    let exponent = u32::try_from(found.attempts.saturating_sub(1).clamp(0, 20)).unwrap_or(20);
-    let retry_at = now.saturating_add(duration_ms(backoff).saturating_mul(1 << exponent));
+    if let (false, Rerun::WithAnotherSeed { next_seed, .. }) = (dead, rerun) {
+        // Seeds are stored bit for bit as i64.
+        let seed: i64 = sqlx::query_scalar("SELECT seed FROM runs WHERE id = ?")
+            .bind(&found.run_id)
+            .fetch_one(&mut **tx)
+            .await?;
+        sqlx::query("UPDATE runs SET seed = ? WHERE id = ?")
+            .bind(next_seed(seed as u64) as i64)
+            .bind(&found.run_id)
+            .execute(&mut **tx)
+            .await?;
+        // An expired earlier lease ran the old seed: its late result no longer belongs to
+        // the run (it is refused, and its worker told to stop).
+        sqlx::query(
+            "UPDATE leases SET outcome = 'superseded' WHERE job_id = ? AND outcome = 'expired'",
+        )
+        .bind(job_id.to_string())
+        .execute(&mut **tx)
+        .await?;
+    }
     sqlx::query("UPDATE leases SET outcome = 'failed', ended_at = ? WHERE token = ?")
         .bind(now)
         .bind(token.to_string())

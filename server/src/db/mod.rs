@@ -48,7 +48,7 @@ pub use backup::{backup, BackupError, BackupReport};
 use batches::*;
 pub use campaigns::{CampaignRecord, CampaignUpdate};
 pub use error::DbError;
-pub use jobs::JobUpdate;
+pub use jobs::{JobUpdate, Rerun};
 
 /// How long a connection waits for SQLite's lock (another process, a checkpoint) before failing.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
