@@ -650,6 +650,39 @@ async fn a_late_result_of_the_seed_before_a_new_one_is_refused() {
     server.stop().await;
 }
 
+/// A result is stored as sent, to the last bit: 1.7301083670000001 is a number serde_json's
+/// default (fast) float parser reads one unit in the last place off; the workspace turns on its
+/// exact parser (`float_roundtrip`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_result_is_stored_to_the_last_bit() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    let batch = server
+        .submit(&batch_request(json!({"type": "factorial"}), "linear", 1))
+        .await;
+    let worker = server.register().await;
+    let job = server.claim(worker, 0.0).await.unwrap();
+    let awkward = 1.7301083670000001_f64;
+    let mut completion = common::simulate(&job);
+    completion.metrics.insert("angle_deg".into(), awkward);
+    completion.wall_time_s = awkward;
+    let (status, body) = server
+        .post(
+            &format!("/v1/jobs/{}/complete", job.job_id),
+            &serde_json::to_value(completion).unwrap(),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    let runs = server.runs(batch.id).await;
+    let run = runs.iter().find(|r| r.id == job.run_id).unwrap();
+    assert_eq!(
+        run.metrics.as_ref().unwrap()["angle_deg"].to_bits(),
+        awkward.to_bits()
+    );
+    assert_eq!(run.wall_time_s.unwrap().to_bits(), awkward.to_bits());
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn long_poll_wakes_on_submission_and_cancel_stops_workers() {
     let (_dir, db) = temp_db();
