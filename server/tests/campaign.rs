@@ -70,12 +70,7 @@ async fn work(server: &TestServer, idle_s: f64, max_jobs: usize) -> usize {
             break;
         };
         let completion = answer(&job);
-        let (status, body) = server
-            .post(
-                &format!("/v1/jobs/{}/complete", job.job_id),
-                &serde_json::to_value(completion).unwrap(),
-            )
-            .await;
+        let (status, body) = server.complete_with(&job, &completion).await;
         assert_eq!(status, StatusCode::OK, "{body}");
         done += 1;
     }

@@ -666,12 +666,7 @@ async fn a_result_is_stored_to_the_last_bit() {
     let mut completion = common::simulate(&job);
     completion.metrics.insert("angle_deg".into(), awkward);
     completion.wall_time_s = awkward;
-    let (status, body) = server
-        .post(
-            &format!("/v1/jobs/{}/complete", job.job_id),
-            &serde_json::to_value(completion).unwrap(),
-        )
-        .await;
+    let (status, body) = server.complete_with(&job, &completion).await;
     assert_eq!(status, StatusCode::OK, "{body}");
     let runs = server.runs(batch.id).await;
     let run = runs.iter().find(|r| r.id == job.run_id).unwrap();

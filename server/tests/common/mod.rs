@@ -215,7 +215,15 @@ impl TestServer {
     }
 
     pub async fn complete(&self, job: &ClaimResponse) -> (StatusCode, Value) {
-        let completion = simulate(job);
+        self.complete_with(job, &simulate(job)).await
+    }
+
+    /// Delivers `completion` as `job`'s result.
+    pub async fn complete_with(
+        &self,
+        job: &ClaimResponse,
+        completion: &Completion,
+    ) -> (StatusCode, Value) {
         self.post(
             &format!("/v1/jobs/{}/complete", job.job_id),
             &serde_json::to_value(completion).unwrap(),
