@@ -347,6 +347,26 @@ pub fn run_experiment_with_beds(
     run_experiment_with_stores(kind, spec, seed, progress, beds, &mut NoCheckpoints)
 }
 
+/// The key under which [`run_experiment_with_stores`] keeps this run's checkpoint, for a kind
+/// that keeps checkpoints (angle of repose); `None` for the others. A worker uses it to drop the
+/// checkpoint of a run nobody will continue (its batch was cancelled, or its result came from
+/// elsewhere).
+pub fn checkpoint_key_of_run(
+    kind: &str,
+    spec: &Value,
+    seed: u64,
+) -> Result<Option<String>, ExperimentError> {
+    match ExperimentSpec::parse(Kind::parse(kind)?, spec)? {
+        ExperimentSpec::Aor(mut spec) => {
+            spec.seed = seed;
+            Ok(Some(checkpoint_key(&spec)))
+        }
+        ExperimentSpec::Drill(_) | ExperimentSpec::Shear(_) | ExperimentSpec::TableLookup(_) => {
+            Ok(None)
+        }
+    }
+}
+
 /// [`run_experiment_with_beds`], with angle-of-repose runs continued from and checkpointed to
 /// `checkpoints` (under [`checkpoint_key`]). The outcome is the same, bit for bit, whether the
 /// run went through in one go or was continued (`details.resumed_at_step` says which); a run

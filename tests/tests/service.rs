@@ -268,6 +268,60 @@ fn a_worker_killed_mid_aor_run_leaves_a_checkpoint_the_next_worker_goes_on_from(
 }
 
 #[test]
+fn a_cancelled_aor_run_leaves_no_checkpoint_behind() {
+    // A worker keeps a checkpoint of a long heap every step; the batch is cancelled while it
+    // runs. The worker hears it at its next heartbeat, stops, and deletes the run's checkpoint:
+    // nobody will continue a cancelled run (a worker that is only stopping keeps it).
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 2.0);
+    let checkpoints = dir.path().join("checkpoints");
+    let batch = service.submit(&json!({
+        "name": "one heap, cancelled",
+        "experiment": {"kind": "aor", "preset": "fast", "spec": {"time_cap": 30.0}},
+        "factors": [{"name": "mu_r", "path": "soil_soil.rolling_friction", "low": 0.05, "high": 0.1}],
+        "design": {"type": "explicit", "points": [[0.08]]},
+        "response": "angle_deg",
+        "model": "none",
+        "seed": 5
+    }));
+    let worker = service.start_worker(
+        "worker",
+        &[
+            "--checkpoint-dir",
+            checkpoints.to_str().unwrap(),
+            "--checkpoint-every",
+            "0",
+        ],
+    );
+    let kept = || -> usize {
+        std::fs::read_dir(&checkpoints).map_or(0, |d| {
+            d.filter_map(Result::ok)
+                .filter(|e| e.path().extension().is_some_and(|x| x == "checkpoint"))
+                .count()
+        })
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while kept() == 0 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no checkpoint after 2 min"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    service.post(&format!("/v1/batches/{batch}/cancel"), &json!({}));
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    while !worker.log_text().contains("lease lost") || kept() > 0 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{} checkpoint(s) left a minute after the cancel\n{}",
+            kept(),
+            worker.log_text()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
 fn the_server_killed_mid_batch_restarts_and_nothing_is_lost() {
     let dir = tempfile::tempdir().unwrap();
     let mut service = Service::start(dir.path(), 5.0);

@@ -33,7 +33,8 @@ use std::time::{Duration, Instant};
 use rand::Rng;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
 use repose_experiments::catalog::{
-    run_experiment_with_stores, CheckpointStore, ExperimentError, NoCheckpoints, Outcome,
+    checkpoint_key_of_run, run_experiment_with_stores, CheckpointStore, ExperimentError,
+    NoCheckpoints, Outcome,
 };
 use repose_experiments::progress::Control;
 use tokio::sync::watch;
@@ -425,6 +426,9 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
 
     if signals.lease_lost.load(Ordering::SeqCst) {
         tracing::warn!(job = %job.job_id, "lease lost (batch cancelled or lease expired); result dropped");
+        // The server said stop: the batch was cancelled or the run has its result from
+        // elsewhere, so nobody will continue this run from its checkpoint.
+        drop_checkpoint(context, &job);
         return JobEnd::Abandoned;
     }
     if signals.cancel.load(Ordering::SeqCst) {
@@ -614,6 +618,17 @@ async fn heartbeat_loop(
             // late result of an expired lease is still taken if nobody else finished first.
             Err(e) => tracing::warn!(job = %job_id, error = %e, "heartbeat not delivered"),
         }
+    }
+}
+
+/// Deletes the checkpoint `job`'s run keeps in the checkpoint directory, if any.
+fn drop_checkpoint(context: &SlotContext, job: &ClaimResponse) {
+    let Some(dir) = &context.config.checkpoint_dir else {
+        return;
+    };
+    if let Ok(Some(key)) = checkpoint_key_of_run(&job.kind, &job.spec, job.seed) {
+        FileCheckpointStore::new(dir, context.config.checkpoint_every).remove(&key);
+        tracing::info!(job = %job.job_id, key, "dropped the checkpoint (if any) of a run nobody will continue");
     }
 }
 
