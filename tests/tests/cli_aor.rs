@@ -416,3 +416,114 @@ fn aor_killed_mid_run_goes_on_from_its_checkpoint_and_ends_as_if_never_stopped()
         std::fs::read_to_string(cut.join("final.csv")).unwrap()
     );
 }
+
+/// A small tmpfs mounted for one test and unmounted when dropped, also on failure.
+struct SmallDisk {
+    path: std::path::PathBuf,
+}
+
+impl SmallDisk {
+    /// `None` (with the reason) where mounting is not allowed (not root, no CAP_SYS_ADMIN).
+    fn mount(path: std::path::PathBuf, size: &str) -> Result<SmallDisk, String> {
+        std::fs::create_dir_all(&path).map_err(|e| e.to_string())?;
+        let out = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(&path)
+            .output()
+            .map_err(|e| format!("cannot run mount: {e}"))?;
+        if out.status.success() {
+            Ok(SmallDisk { path })
+        } else {
+            Err(String::from_utf8_lossy(&out.stderr).trim().to_owned())
+        }
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg(&self.path)
+            .status();
+    }
+}
+
+#[test]
+fn aor_with_its_checkpoint_on_a_full_disk_warns_and_ends_as_without() {
+    // The checkpoint goes to a 192 KiB tmpfs: the first ones (few grains poured) fit, the
+    // later ones do not. A checkpoint that cannot be written costs only the restart point:
+    // the run says so and ends exactly as a run without a checkpoint. Needs the privilege to
+    // mount (root); prints why and skips otherwise.
+    let dir = tempfile::tempdir().unwrap();
+    let disk = match SmallDisk::mount(dir.path().join("small"), "192k") {
+        Ok(disk) => disk,
+        Err(why) => {
+            eprintln!("skipped: cannot mount a small tmpfs ({why})");
+            return;
+        }
+    };
+    let args = |out: &std::path::Path| -> Vec<String> {
+        [
+            "aor",
+            "--preset",
+            "fast",
+            "--set",
+            "settle.min_time=0.1",
+            "--set",
+            "settle.check_interval=0.05",
+            "--set",
+            "time_cap=0.25",
+            "--threads",
+            "1",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .map(str::to_owned)
+        .to_vec()
+    };
+    let plain = dir.path().join("plain");
+    let o = repose(&args(&plain).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+
+    let full = dir.path().join("full");
+    let checkpoint = disk.path.join("aor.checkpoint");
+    let mut with_checkpoint = args(&full);
+    with_checkpoint.extend(
+        [
+            "--checkpoint",
+            checkpoint.to_str().unwrap(),
+            "--checkpoint-every",
+            "0",
+        ]
+        .map(str::to_owned),
+    );
+    let o = repose(
+        &with_checkpoint
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let err = stderr(&o);
+    assert!(o.status.success(), "stderr: {err}");
+    assert!(
+        err.contains("warning: checkpoint not kept"),
+        "stderr: {err}"
+    );
+    assert!(err.contains("No space left on device"), "stderr: {err}");
+    assert!(
+        !checkpoint.exists(),
+        "the finished run's checkpoint is deleted"
+    );
+    let result = |dir: &std::path::Path| -> serde_json::Value {
+        let mut r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("result.json")).unwrap())
+                .unwrap();
+        r.as_object_mut().unwrap().remove("wall_time_s");
+        r
+    };
+    assert_eq!(result(&full), result(&plain));
+    assert_eq!(
+        std::fs::read(full.join("final.csv")).unwrap(),
+        std::fs::read(plain.join("final.csv")).unwrap()
+    );
+}
