@@ -299,26 +299,7 @@ fn aor_killed_mid_run_goes_on_from_its_checkpoint_and_ends_as_if_never_stopped()
     // keeps a checkpoint, is killed (SIGKILL) once it has one, and is run again with the same
     // command: it must continue from the checkpoint and write the same result to the last bit.
     let dir = tempfile::tempdir().unwrap();
-    let args = |out: &std::path::Path| -> Vec<String> {
-        [
-            "aor",
-            "--preset",
-            "fast",
-            "--set",
-            "settle.min_time=0.1",
-            "--set",
-            "settle.check_interval=0.05",
-            "--set",
-            "time_cap=0.25",
-            "--threads",
-            "1",
-            "--quiet",
-            "--out",
-            out.to_str().unwrap(),
-        ]
-        .map(str::to_owned)
-        .to_vec()
-    };
+    let args = short_pour;
     let whole = dir.path().join("whole");
     let o = repose(&args(&whole).iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "stderr: {}", stderr(&o));
@@ -461,26 +442,7 @@ fn aor_with_its_checkpoint_on_a_full_disk_warns_and_ends_as_without() {
             return;
         }
     };
-    let args = |out: &std::path::Path| -> Vec<String> {
-        [
-            "aor",
-            "--preset",
-            "fast",
-            "--set",
-            "settle.min_time=0.1",
-            "--set",
-            "settle.check_interval=0.05",
-            "--set",
-            "time_cap=0.25",
-            "--threads",
-            "1",
-            "--quiet",
-            "--out",
-            out.to_str().unwrap(),
-        ]
-        .map(str::to_owned)
-        .to_vec()
-    };
+    let args = short_pour;
     let plain = dir.path().join("plain");
     let o = repose(&args(&plain).iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "stderr: {}", stderr(&o));
@@ -526,4 +488,26 @@ fn aor_with_its_checkpoint_on_a_full_disk_warns_and_ends_as_without() {
         std::fs::read(full.join("final.csv")).unwrap(),
         std::fs::read(plain.join("final.csv")).unwrap()
     );
+}
+
+/// `repose aor` on a short fast pour (cut by the time cap while it settles), writing to `out`.
+fn short_pour(out: &std::path::Path) -> Vec<String> {
+    [
+        "aor",
+        "--preset",
+        "fast",
+        "--set",
+        "settle.min_time=0.1",
+        "--set",
+        "settle.check_interval=0.05",
+        "--set",
+        "time_cap=0.25",
+        "--threads",
+        "1",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .map(str::to_owned)
+    .to_vec()
 }

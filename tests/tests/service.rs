@@ -183,13 +183,7 @@ fn a_worker_killed_mid_aor_run_leaves_a_checkpoint_the_next_worker_goes_on_from(
         "seed": 3
     }));
     let mut doomed = service.start_worker("doomed", &worker_args);
-    let kept = || -> usize {
-        std::fs::read_dir(&checkpoints).map_or(0, |d| {
-            d.filter_map(Result::ok)
-                .filter(|e| e.path().extension().is_some_and(|x| x == "checkpoint"))
-                .count()
-        })
-    };
+    let kept = || checkpoint_files(&checkpoints);
     let deadline = std::time::Instant::now() + Duration::from_secs(120);
     while kept() == 0 {
         assert!(
@@ -293,13 +287,7 @@ fn a_cancelled_aor_run_leaves_no_checkpoint_behind() {
             "0",
         ],
     );
-    let kept = || -> usize {
-        std::fs::read_dir(&checkpoints).map_or(0, |d| {
-            d.filter_map(Result::ok)
-                .filter(|e| e.path().extension().is_some_and(|x| x == "checkpoint"))
-                .count()
-        })
-    };
+    let kept = || checkpoint_files(&checkpoints);
     let deadline = std::time::Instant::now() + Duration::from_secs(120);
     while kept() == 0 {
         assert!(
@@ -928,4 +916,13 @@ fn a_worker_id_that_is_not_a_uuid_is_refused_naming_the_flag() {
     let stderr = common::stderr(&out);
     assert!(stderr.contains("--instance-id"), "{stderr}");
     assert!(stderr.contains("worker-7"), "{stderr}");
+}
+
+/// How many checkpoint files `dir` holds (none if it does not exist).
+fn checkpoint_files(dir: &std::path::Path) -> usize {
+    std::fs::read_dir(dir).map_or(0, |d| {
+        d.filter_map(Result::ok)
+            .filter(|e| e.path().extension().is_some_and(|x| x == "checkpoint"))
+            .count()
+    })
 }
