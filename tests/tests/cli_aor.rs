@@ -306,16 +306,7 @@ fn aor_killed_mid_run_goes_on_from_its_checkpoint_and_ends_as_if_never_stopped()
 
     let cut = dir.path().join("cut");
     let checkpoint = dir.path().join("state/aor.checkpoint");
-    let mut with_checkpoint = args(&cut);
-    with_checkpoint.extend(
-        [
-            "--checkpoint",
-            checkpoint.to_str().unwrap(),
-            "--checkpoint-every",
-            "0",
-        ]
-        .map(str::to_owned),
-    );
+    let with_checkpoint = checkpointed(args(&cut), &checkpoint);
     let mut child = std::process::Command::new(common::repose_bin())
         .args(&with_checkpoint)
         .stdout(std::process::Stdio::null())
@@ -449,16 +440,7 @@ fn aor_with_its_checkpoint_on_a_full_disk_warns_and_ends_as_without() {
 
     let full = dir.path().join("full");
     let checkpoint = disk.path.join("aor.checkpoint");
-    let mut with_checkpoint = args(&full);
-    with_checkpoint.extend(
-        [
-            "--checkpoint",
-            checkpoint.to_str().unwrap(),
-            "--checkpoint-every",
-            "0",
-        ]
-        .map(str::to_owned),
-    );
+    let with_checkpoint = checkpointed(args(&full), &checkpoint);
     let o = repose(
         &with_checkpoint
             .iter()
@@ -510,4 +492,18 @@ fn short_pour(out: &std::path::Path) -> Vec<String> {
     ]
     .map(str::to_owned)
     .to_vec()
+}
+
+/// `args` with a checkpoint kept in `file` at every chance.
+fn checkpointed(mut args: Vec<String>, file: &std::path::Path) -> Vec<String> {
+    args.extend(
+        [
+            "--checkpoint",
+            file.to_str().unwrap(),
+            "--checkpoint-every",
+            "0",
+        ]
+        .map(str::to_owned),
+    );
+    args
 }

@@ -184,14 +184,7 @@ fn a_worker_killed_mid_aor_run_leaves_a_checkpoint_the_next_worker_goes_on_from(
     }));
     let mut doomed = service.start_worker("doomed", &worker_args);
     let kept = || checkpoint_files(&checkpoints);
-    let deadline = std::time::Instant::now() + Duration::from_secs(120);
-    while kept() == 0 {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "no checkpoint after 2 min"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_a_checkpoint(&checkpoints);
     std::thread::sleep(Duration::from_millis(300));
     let status = service.get(&format!("/v1/batches/{batch}"));
     assert_eq!(status["counts"]["running"], 1, "killed mid-run: {status}");
@@ -288,14 +281,7 @@ fn a_cancelled_aor_run_leaves_no_checkpoint_behind() {
         ],
     );
     let kept = || checkpoint_files(&checkpoints);
-    let deadline = std::time::Instant::now() + Duration::from_secs(120);
-    while kept() == 0 {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "no checkpoint after 2 min"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_a_checkpoint(&checkpoints);
     service.post(&format!("/v1/batches/{batch}/cancel"), &json!({}));
     let deadline = std::time::Instant::now() + Duration::from_secs(60);
     while !worker.log_text().contains("lease lost") || kept() > 0 {
@@ -916,6 +902,18 @@ fn a_worker_id_that_is_not_a_uuid_is_refused_naming_the_flag() {
     let stderr = common::stderr(&out);
     assert!(stderr.contains("--instance-id"), "{stderr}");
     assert!(stderr.contains("worker-7"), "{stderr}");
+}
+
+/// Waits (up to 2 min) until `dir` holds a checkpoint file.
+fn wait_for_a_checkpoint(dir: &std::path::Path) {
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while checkpoint_files(dir) == 0 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no checkpoint after 2 min"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// How many checkpoint files `dir` holds (none if it does not exist).
