@@ -37,6 +37,10 @@ pub struct UpArgs {
     /// Lease length, seconds.
     #[arg(long, env = "REPOSE_LEASE_S", default_value_t = 60.0)]
     pub lease_s: f64,
+    /// Attempts a run gets before it is dead: retries of a failure that may not happen again,
+    /// and pours under a new seed of a run whose grains arched over the funnel's outlet.
+    #[arg(long, env = "REPOSE_MAX_ATTEMPTS", default_value_t = 3)]
+    pub max_attempts: u32,
     /// Batch file to submit once the service is up (repeatable; followed in order).
     #[arg(long, value_name = "FILE")]
     pub submit: Vec<PathBuf>,
@@ -97,6 +101,9 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
             args.lease_s
         );
     }
+    if args.max_attempts == 0 {
+        bail!("--max-attempts must be at least 1");
+    }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = match args.threads {
         Some(0) => bail!("--threads must be at least 1"),
@@ -117,6 +124,7 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
     let mut server = Config::new(args.db.clone());
     server.listen = args.listen;
     server.lease = Duration::from_secs_f64(args.lease_s);
+    server.max_attempts = args.max_attempts;
     let tokens_file = args.tokens_file.clone().unwrap_or_else(|| {
         let mut name = args.db.as_os_str().to_owned();
         name.push(".tokens.env");

@@ -896,6 +896,29 @@ fn repose_backup_mid_batch_restores_to_a_server_that_finishes_the_batch() {
 }
 
 #[test]
+fn repose_up_refuses_bad_settings_naming_the_flag_before_starting() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("up.db");
+    for (flag, value) in [
+        ("--max-attempts", "0"),
+        ("--workers", "0"),
+        ("--lease-s", "0"),
+    ] {
+        let out = std::process::Command::new(common::repose_bin())
+            .args(["up", "--listen", "127.0.0.1:0", "--db"])
+            .arg(&db)
+            .args([flag, value])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "{flag} {value}");
+        let stderr = common::stderr(&out);
+        assert!(stderr.contains(flag), "{flag}: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "{flag}: {stderr}");
+    }
+    assert!(!db.exists(), "nothing is created for a refused command");
+}
+
+#[test]
 fn a_worker_id_that_is_not_a_uuid_is_refused_naming_the_flag() {
     let out = common::repose(&["worker", "--instance-id", "worker-7"]);
     assert_eq!(out.status.code(), Some(2));
