@@ -102,9 +102,9 @@ impl Metrics {
         self.failures.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// A lease was given back.
-    pub fn released(&self) {
-        self.releases.fetch_add(1, Ordering::Relaxed);
+    /// `leases` leases were given back.
+    pub fn released(&self, leases: u64) {
+        self.releases.fetch_add(leases, Ordering::Relaxed);
     }
 
     fn responded(&self, status: u16) {

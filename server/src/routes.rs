@@ -572,9 +572,7 @@ async fn register_worker(
     if released > 0 {
         tracing::info!(worker = %registration.instance_id, jobs = released,
             "jobs the worker held before it restarted went back to the queue");
-        for _ in 0..released {
-            state.metrics.released();
-        }
+        state.metrics.released(released);
         orchestrate::jobs_available(&state);
     }
     Ok(Json(WorkerRegistered {
@@ -716,7 +714,7 @@ async fn release_job(
     ValidJson(release): ValidJson<Release>,
 ) -> Result<impl IntoResponse, AppError> {
     let update = state.db.release(job_id, release.lease_token).await?;
-    state.metrics.released();
+    state.metrics.released(1);
     Ok(orchestrate::job_updated(&state, job_id, update))
 }
 

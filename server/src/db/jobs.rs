@@ -58,6 +58,8 @@ pub(super) struct LeaseLookup {
     current_token: Option<String>,
     attempts: i64,
     run_id: String,
+    /// The run's seed (stored bit for bit as i64).
+    seed: i64,
     batch_id: String,
     has_result: bool,
     response: String,
@@ -470,7 +472,7 @@ pub(super) async fn lookup_lease(
 ) -> Result<LeaseLookup, DbError> {
     let row = sqlx::query(
         "SELECT l.outcome, l.worker_id, j.state, j.lease_token, j.attempts, j.run_id, j.batch_id,
-                r.metrics IS NOT NULL AS has_result, b.response, b.state AS batch_state
+                r.seed, r.metrics IS NOT NULL AS has_result, b.response, b.state AS batch_state
          FROM leases l
          JOIN jobs j ON j.id = l.job_id
          JOIN runs r ON r.id = j.run_id
@@ -503,6 +505,7 @@ pub(super) async fn lookup_lease(
         current_token: row.try_get("lease_token")?,
         attempts: row.try_get("attempts")?,
         run_id: row.try_get("run_id")?,
+        seed: row.try_get("seed")?,
         batch_id: row.try_get("batch_id")?,
         has_result: row.try_get("has_result")?,
         response: row.try_get("response")?,
@@ -732,12 +735,8 @@ pub(super) async fn fail_in(
     };
     if let (false, Rerun::WithAnotherSeed { next_seed, .. }) = (dead, rerun) {
         // Seeds are stored bit for bit as i64.
-        let seed: i64 = sqlx::query_scalar("SELECT seed FROM runs WHERE id = ?")
-            .bind(&found.run_id)
-            .fetch_one(&mut **tx)
-            .await?;
         sqlx::query("UPDATE runs SET seed = ? WHERE id = ?")
-            .bind(next_seed(seed as u64) as i64)
+            .bind(next_seed(found.seed as u64) as i64)
             .bind(&found.run_id)
             .execute(&mut **tx)
             .await?;
@@ -787,15 +786,26 @@ async fn release_leases_of(tx: &mut WriteTx, worker_id: &str, now: i64) -> Resul
     .bind(worker_id)
     .execute(&mut **tx)
     .await?;
-    let released = sqlx::query(
+    requeue_released(tx, "worker_id", worker_id, now).await
+}
+
+/// Puts the leased jobs whose `column` (`id` or `worker_id`) is `value` back in the queue as
+/// released: at once, the attempt not counted.
+async fn requeue_released(
+    tx: &mut WriteTx,
+    column: &'static str,
+    value: &str,
+    now: i64,
+) -> Result<u64, DbError> {
+    let released = sqlx::query(&format!(
         "UPDATE jobs SET state = 'queued', attempts = MAX(attempts - 1, 0), lease_token = NULL,
                          lease_expires_at = NULL, worker_id = NULL, available_at = ?,
                          updated_at = ?
-         WHERE worker_id = ? AND state = 'leased'",
-    )
+         WHERE {column} = ? AND state = 'leased'"
+    ))
     .bind(now)
     .bind(now)
-    .bind(worker_id)
+    .bind(value)
     .execute(&mut **tx)
     .await?
     .rows_affected();
@@ -817,17 +827,7 @@ pub(super) async fn release_in(
         .bind(token.to_string())
         .execute(&mut **tx)
         .await?;
-    sqlx::query(
-        "UPDATE jobs SET state = 'queued', attempts = MAX(attempts - 1, 0), lease_token = NULL,
-                         lease_expires_at = NULL, worker_id = NULL, available_at = ?,
-                         updated_at = ?
-         WHERE id = ?",
-    )
-    .bind(now)
-    .bind(now)
-    .bind(job_id.to_string())
-    .execute(&mut **tx)
-    .await?;
+    requeue_released(tx, "id", &job_id.to_string(), now).await?;
 
     Ok(JobUpdate {
         batch_id: parse_uuid(&found.batch_id)?,
