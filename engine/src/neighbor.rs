@@ -20,8 +20,9 @@ pub(crate) const CHUNK: usize = 512;
 
 /// Top bit of a [`PairList::partner`] entry: the pair was in contact at the last force
 /// evaluation (kept across builds; a non-zero carried history sets it too). When it is clear, the
-/// pair's histories are zero and its partner share is stale (not read), so a pair within the
-/// skin but not touching costs no writes.
+/// pair's histories and its partner share are zero: a pair within the skin but not touching
+/// costs no writes (only the step it separates resets them), and the gather adds every
+/// incident share without reading this flag.
 pub(crate) const IN_CONTACT: u32 = 1 << 31;
 /// Second bit of a [`PairList::partner`] entry: at the build the two particles were closest
 /// across a periodic face, so their separation needs the minimum image. Positions are wrapped
@@ -139,7 +140,7 @@ pub(crate) struct PairList {
     /// EPSD rolling spring torque on i (empty unless EPSD is used).
     pub rolling: Vec<Vec3>,
     /// Contributions to the higher-index particle, written by the contact loop for the pairs
-    /// in contact (see [`IN_CONTACT`]).
+    /// in contact; zero for the others (see [`IN_CONTACT`]).
     pub partner_share: Vec<PartnerShare>,
     /// CSR offsets, length n + 1: the pairs in which particle k is the higher index j.
     pub incidence_start: Vec<u32>,

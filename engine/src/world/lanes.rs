@@ -179,9 +179,10 @@ pub(super) fn chunk_pairs(
                 count += touching as usize;
                 let was = entry & IN_CONTACT != 0;
                 if was & !touching {
-                    // Separated since the last step: the history is reset, the share left
-                    // stale.
+                    // Separated since the last step: the history and the share are reset
+                    // (the gather adds every share, so a pair out of contact holds zeros).
                     tangential[local] = Vec3::zeros();
+                    share[local] = PartnerShare::default();
                 }
                 partner[local] = (entry & !IN_CONTACT) | ((touching as u32) * IN_CONTACT);
             }

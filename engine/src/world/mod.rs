@@ -863,6 +863,57 @@ mod tests {
         assert_eq!(one, two);
     }
 
+    /// The gather adds every incident share without reading the pair's flag, so a pair out of
+    /// contact must hold a zero share: after every step of a falling, colliding cloud, on both
+    /// pair paths and both dispatch paths, while pairs touch and separate.
+    #[test]
+    fn a_pair_out_of_contact_holds_a_zero_share() {
+        for kernel in [KernelChoice::Auto, KernelChoice::Scalar] {
+            for threads in [1, 2] {
+                on_threads(threads, || {
+                    let mut world = cloud(
+                        RollingModel::ConstantDirectionalTorque,
+                        Integrator::SymplecticEuler,
+                    );
+                    world.set_kernel(kernel);
+                    let mut separations = 0;
+                    let mut was_touching: Vec<bool> = Vec::new();
+                    for step in 0..300 {
+                        world.step();
+                        let pairs = &world.pairs;
+                        let touching: Vec<bool> =
+                            pairs.partner.iter().map(|e| e & IN_CONTACT != 0).collect();
+                        // Pair indices only compare between rebuilds.
+                        if touching.len() == was_touching.len() {
+                            separations += was_touching
+                                .iter()
+                                .zip(&touching)
+                                .filter(|&(&was, &is)| was && !is)
+                                .count();
+                        }
+                        for (k, &is) in touching.iter().enumerate() {
+                            let share = pairs.partner_share[k];
+                            if !is {
+                                assert!(
+                                    share.force == Vec3::zeros()
+                                        && share.torque == Vec3::zeros()
+                                        && share.rolling_moment == 0.0,
+                                    "{kernel:?}, {threads} threads, step {step}: pair {k} is \
+                                     out of contact with the share {share:?}"
+                                );
+                            }
+                        }
+                        was_touching = touching;
+                    }
+                    assert!(
+                        separations > 100,
+                        "{kernel:?}: only {separations} separations"
+                    );
+                });
+            }
+        }
+    }
+
     /// The lane kernel and the scalar loop give the same pour bit for bit (dense, sliding,
     /// spinning contacts across periodic faces), on one thread and two.
     #[test]
