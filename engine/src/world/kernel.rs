@@ -457,8 +457,9 @@ fn pairs_scalar(
 }
 
 /// Particle i adds the shares of the pairs it is the higher index of (`incident`; a pair out
-/// of contact holds a zero share) to its own force, torque and CDT moment, applies CDT rolling friction, then integrates. Returns
-/// whether it moved far enough (or out of the domain) to need a rebuild.
+/// of contact holds a zero share) to its own force, torque and CDT moment, applies CDT rolling
+/// friction, then integrates. Returns whether it moved far enough (or out of the domain) to
+/// need a rebuild.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn gather_particle(
