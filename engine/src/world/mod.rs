@@ -55,7 +55,7 @@ use crate::math::{Pose, Vec3};
 use crate::mesh::{MeshContact, TriMesh};
 use crate::neighbor::{
     build_pair_list, CellGrid, Domain, PairList, PartnerShare, CHUNK, IN_CONTACT, PARTNER_INDEX,
-    WRAPS,
+    SEARCH_CELLS, SORT_CELLS, WRAPS,
 };
 use crate::particles::{single, BuildMark, ParticleSpec, Particles, WallHistory};
 

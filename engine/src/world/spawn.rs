@@ -29,7 +29,7 @@ impl NearSource {
             .filter(|(_, x)| near(x))
             .map(|(k, x)| (k as u32, *x))
             .unzip();
-        let grid = CellGrid::build(domain, reach, &positions);
+        let grid = CellGrid::build(domain, reach, &positions, SORT_CELLS);
         NearSource { grid, index, reach }
     }
 }

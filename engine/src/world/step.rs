@@ -76,15 +76,15 @@ impl World {
         self.skin = 2.0 * half_skin.iter().copied().fold(0.0f32, f32::max) as f64;
         let p = &mut self.particles;
         let cell_size = 2.0 * max_radius + self.skin;
-        let mut grid = CellGrid::build(&domain, cell_size, &p.position);
         let sort_every = self.config.sort_every_rebuilds as u64;
         let half_skin = if sort_every > 0 && self.rebuilds % sort_every == 0 {
-            p.permute(&grid.sorted);
-            let sorted = std::mem::replace(&mut grid.sorted, (0..p.len() as u32).collect());
-            sorted.iter().map(|&k| half_skin[k as usize]).collect()
+            let order = CellGrid::build(&domain, cell_size, &p.position, SORT_CELLS).sorted;
+            p.permute(&order);
+            order.iter().map(|&k| half_skin[k as usize]).collect()
         } else {
             half_skin
         };
+        let grid = CellGrid::build(&domain, cell_size, &p.position, SEARCH_CELLS);
         let with_rolling = matches!(
             self.config.rolling_model,
             RollingModel::ElasticPlasticSpringDashpot { .. }
