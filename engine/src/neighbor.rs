@@ -422,6 +422,7 @@ pub(crate) fn build_pair_list(
 
     let chunks: Vec<ChunkPairs> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
+        .with_max_len(1)
         .map(|chunk| {
             let range = chunk * CHUNK..((chunk + 1) * CHUNK).min(n);
             let mut out = ChunkPairs {

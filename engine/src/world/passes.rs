@@ -217,8 +217,14 @@ impl World {
             material: &p.material,
         };
 
+        // One chunk per rayon job, here and in every per-chunk pass: chunks do not cost the
+        // same (a floor, a funnel wall, a dense or a dilute region), and rayon's adaptive split
+        // otherwise hands each thread a few large pieces, so one thread waited for the other
+        // at the end of each pass (20 000 grains on 2 threads: 10.7-13.0 -> 13.6-14.5 M
+        // particle-steps/s, BENCHMARKS.md). Which thread runs a chunk never changes a result.
         let loads = tasks
             .into_par_iter()
+            .with_max_len(1)
             .map(|task| {
                 let mut loads = vec![(Vec3::zeros(), Vec3::zeros()); ctx.geometries.len()];
                 with_scratch(|scratch| {
@@ -268,6 +274,7 @@ impl World {
             .zip(p.velocity.par_chunks_mut(CHUNK))
             .zip(p.angular_velocity.par_chunks_mut(CHUNK))
             .enumerate()
+            .with_max_len(1)
             .map(|(c, ((((f, tq), x), v), w))| {
                 let base = c * CHUNK;
                 let mut rebuild = false;

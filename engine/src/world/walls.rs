@@ -90,6 +90,7 @@ impl World {
         let geometries = &self.geometries;
         let chunks: Vec<(Vec<u32>, Vec<u32>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
+            .with_max_len(1)
             .map(|chunk| {
                 let range = chunk * CHUNK..((chunk + 1) * CHUNK).min(n);
                 let mut counts = Vec::with_capacity(range.len());
