@@ -39,8 +39,8 @@
 //!   is 8.5 d), 50 g (about 4 480 grains), the paper's funnel unscaled. About 3 minutes of one
 //!   core (release build, loaded machine).
 //! * [`AorSpec::paper_scale`] (`paper-scale`): the paper's test at the paper's mass, 0.3 kg of
-//!   2 mm grains (about 26 900); 399 s on 2 threads of a quiet machine (BENCHMARKS.md,
-//!   2026-11-25), so not yet the default (issue 13: only once it runs in ≤ 5 minutes).
+//!   2 mm grains (about 26 900); 393-425 s on 2 threads (BENCHMARKS.md, 2026-11-26, depending
+//!   on the hour), so not yet the default (issue 13: only once it runs in ≤ 5 minutes).
 //! * `fine`: 0.3 kg of 1 mm grains (about 215 000), for machines that can afford hours.
 //! * The ladders of issue 13 ([`SIZE_LADDER`], [`MASS_LADDER`]): `size-2.5mm`, `size-1.5mm`
 //!   (0.3 kg), `mass-100g` (2 mm), and `paper-scale-sieve`: 0.3 kg with the sand's grading
