@@ -191,11 +191,12 @@ pub(crate) struct CellBudget(pub usize);
 pub(crate) const SORT_CELLS: CellBudget = CellBudget(4);
 
 /// The budget of the pair search's grid: 32 cells per particle. A heap spreads over a plate
-/// much wider than it is dense: the paper-scale pour's particles span 0.26 × 0.23 × 0.15 m,
-/// and 4 cells per particle widened its 2.3-3 mm cells to 4.3 mm, so each particle scanned
-/// 3-6 times the candidates (the build was a sixth of the run). Empty cells cost 4 bytes and
-/// one prefix-sum step each at a rebuild. The pair list does not depend on the cell size
-/// (every pair within reach, partners in ascending order), so neither does any result.
+/// much wider than it is dense: the paper-scale pour's particles end spanning 0.26 × 0.23 ×
+/// 0.15 m, where 4 cells per particle widen the asked 3 mm cells to 4.3 mm (about three times
+/// the candidates per particle). Only the run's late part is that spread: the whole run gained
+/// 1-2 % (BENCHMARKS.md, 2026-11-26). Empty cells cost 4 bytes and one prefix-sum step each at
+/// a rebuild. The pair list does not depend on the cell size (every pair within reach,
+/// partners in ascending order), so neither does any result.
 pub(crate) const SEARCH_CELLS: CellBudget = CellBudget(32);
 
 /// A uniform grid of cells at least `cell_size` wide covering the domain.
