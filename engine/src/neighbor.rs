@@ -210,6 +210,9 @@ pub(crate) struct CellGrid {
     cell_start: Vec<u32>,
     /// Particle indices in cell order (stable within a cell).
     pub sorted: Vec<u32>,
+    /// The budget widened the cells beyond the asked size (a larger budget would give
+    /// another grid).
+    pub widened: bool,
 }
 
 impl CellGrid {
@@ -256,6 +259,7 @@ impl CellGrid {
             periodic,
             cell_start: Vec::new(),
             sorted: Vec::new(),
+            widened: size > cell_size,
         };
         let cells: Vec<u32> = positions
             .par_iter()
@@ -601,6 +605,7 @@ mod tests {
         for budget in [SORT_CELLS, SEARCH_CELLS] {
             let grid = CellGrid::build(&domain, cell_size, &p.position, budget);
             widths.push(1.0 / grid.inverse_size.x);
+            assert_eq!(grid.widened, budget == SORT_CELLS, "budget {budget:?}");
             let list = build_pair_list(&p, &domain, &grid, &half_skin, false, &PairList::default());
             let found: Vec<Vec<u32>> = (0..p.len())
                 .map(|i| {

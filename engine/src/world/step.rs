@@ -77,14 +77,19 @@ impl World {
         let p = &mut self.particles;
         let cell_size = 2.0 * max_radius + self.skin;
         let sort_every = self.config.sort_every_rebuilds as u64;
-        let half_skin = if sort_every > 0 && self.rebuilds % sort_every == 0 {
-            let order = CellGrid::build(&domain, cell_size, &p.position, SORT_CELLS).sorted;
-            p.permute(&order);
-            order.iter().map(|&k| half_skin[k as usize]).collect()
+        let (half_skin, sort_grid) = if sort_every > 0 && self.rebuilds % sort_every == 0 {
+            let mut grid = CellGrid::build(&domain, cell_size, &p.position, SORT_CELLS);
+            p.permute(&grid.sorted);
+            let order = std::mem::replace(&mut grid.sorted, (0..p.len() as u32).collect());
+            let half_skin = order.iter().map(|&k| half_skin[k as usize]).collect();
+            // Cells the sort budget did not widen are the search's cells too: in the new
+            // order, each cell's particles are the grid's, in order.
+            (half_skin, (!grid.widened).then_some(grid))
         } else {
-            half_skin
+            (half_skin, None)
         };
-        let grid = CellGrid::build(&domain, cell_size, &p.position, SEARCH_CELLS);
+        let grid = sort_grid
+            .unwrap_or_else(|| CellGrid::build(&domain, cell_size, &p.position, SEARCH_CELLS));
         let with_rolling = matches!(
             self.config.rolling_model,
             RollingModel::ElasticPlasticSpringDashpot { .. }
