@@ -15,6 +15,13 @@ fn document() -> Value {
 }
 
 #[test]
+fn document_names_this_release() {
+    // The worker protocol is versioned by the release (`repose_api::version`): a document
+    // that names another release describes another protocol.
+    assert_eq!(document()["info"]["version"], repose_api::version::RELEASE);
+}
+
+#[test]
 fn document_lists_exactly_the_routes_with_their_access() {
     let doc = document();
     assert!(doc["openapi"].as_str().unwrap().starts_with("3."));
