@@ -188,6 +188,12 @@ impl UserClient {
             .await
     }
 
+    /// The registered workers (`GET /v1/workers`).
+    pub async fn workers(&self) -> Result<Vec<repose_api::WorkerView>> {
+        self.expect(self.request(reqwest::Method::GET, "/v1/workers"))
+            .await
+    }
+
     pub async fn batches(&self) -> Result<Vec<BatchSummary>> {
         self.expect(self.request(reqwest::Method::GET, "/v1/batches"))
             .await

@@ -5,7 +5,9 @@
 //! Shutdown order matters: workers stop first (they release the jobs they hold, so nothing is
 //! half-done in the database), then the server drains and closes the database. After a crash
 //! or a kill there was no such release: the local workers keep their ids from one start to the
-//! next, and registering again puts the jobs they held back in the queue.
+//! next, and registering again puts the jobs they held back in the queue; the ids of workers an
+//! earlier start had beyond this start's `--workers` are registered once at start-up for the
+//! same reason.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -179,6 +181,11 @@ async fn up(config: UpConfig) -> Result<()> {
         let _ = stopped.wait_for(|s| *s).await;
     }));
 
+    let client = UserClient::new(&url, Some(tokens.user.clone()))?;
+    let retired = take_back_retired_workers_jobs(&client, &url, &tokens.worker, &config)
+        .await
+        .context("cannot take back the jobs of an earlier start's workers")?;
+
     let (stop_workers, workers_stopped) = watch::channel(false);
     let mut workers = Vec::with_capacity(config.workers);
     for index in 0..config.workers {
@@ -208,8 +215,14 @@ async fn up(config: UpConfig) -> Result<()> {
     );
     println!("  export REPOSE_SERVER={url}");
     println!("  export REPOSE_TOKEN={}", tokens.user);
+    if retired > 0 {
+        println!(
+            "  {retired} job(s) held by local workers of an earlier start that this one does not \
+             start (--workers {}) are back in the queue",
+            config.workers
+        );
+    }
 
-    let client = UserClient::new(&url, Some(tokens.user.clone()))?;
     let (outcome, interrupted) = tokio::select! {
         outcome = follow_submissions(&client, &config) => (outcome, false),
         () = crate::server_cmd::shutdown_signal() => (Ok(()), true),
@@ -248,6 +261,48 @@ fn local_worker_id(worker_token: &str, index: usize) -> uuid::Uuid {
         &uuid::Uuid::NAMESPACE_OID,
         format!("repose up local worker {index} {worker_token}").as_bytes(),
     )
+}
+
+/// Local worker indices looked at above `--workers` when taking back an earlier start's jobs.
+const RETIRED_WORKER_SCAN: usize = 1024;
+
+/// A start with fewer `--workers` than the last one: the jobs that the earlier start's
+/// workers beyond this count held when it was killed go back to the queue now (each such id
+/// is registered once, which releases its leases, as its own worker would on coming back),
+/// instead of waiting out their lease. Only ids of this database's local worker token are
+/// touched, so workers started elsewhere with their own ids keep their jobs. Returns the
+/// number of jobs released.
+async fn take_back_retired_workers_jobs(
+    client: &UserClient,
+    url: &str,
+    worker_token: &str,
+    config: &UpConfig,
+) -> Result<u64> {
+    let ids: std::collections::HashSet<uuid::Uuid> = (config.workers
+        ..config.workers + RETIRED_WORKER_SCAN)
+        .map(|index| local_worker_id(worker_token, index))
+        .collect();
+    let retired: Vec<_> = client
+        .workers()
+        .await?
+        .into_iter()
+        .filter(|w| w.running_jobs > 0 && ids.contains(&w.id))
+        .collect();
+    if retired.is_empty() {
+        return Ok(0);
+    }
+    let worker = repose_worker::Client::new(url, Some(worker_token.to_owned()))?;
+    for retired in &retired {
+        worker
+            .register(&repose_api::WorkerRegistration {
+                instance_id: retired.id,
+                host: retired.host.clone(),
+                threads: retired.threads,
+                version: repose_api::version::RELEASE.to_owned(),
+            })
+            .await?;
+    }
+    Ok(retired.iter().map(|w| w.running_jobs).sum())
 }
 
 /// Submits the batch files in order, follows each to its end and prints its analysis.

@@ -409,11 +409,34 @@ fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_bat
     // it follows the unfinished batch to its end and exits cleanly. Its local workers come back
     // under the same ids, so the jobs they held return to the queue as they register: the
     // batch finishes in seconds, not after the leases run out.
+    let stdout = kill_repose_up_holding_jobs_and_restart(1, 1);
+    assert!(!stdout.contains("earlier start"), "{stdout}");
+}
+
+#[test]
+fn repose_up_restarted_with_fewer_workers_takes_back_the_jobs_of_the_others() {
+    // The same with two workers before the kill and one after: the second worker's id is not
+    // started again, and its job still comes back at once.
+    let stdout = kill_repose_up_holding_jobs_and_restart(2, 1);
+    assert!(
+        stdout.contains(
+            "1 job(s) held by local workers of an earlier start that this one does not start \
+             (--workers 1) are back in the queue"
+        ),
+        "{stdout}"
+    );
+}
+
+/// Starts `repose up` with `before` workers and a batch of 3 two-second runs on hour-long
+/// leases, kills it (SIGKILL) once each worker holds a job, starts it again with `after`
+/// workers and --exit-when-done, and checks the batch ends in time with 3 results. Returns
+/// the second start's stdout.
+fn kill_repose_up_holding_jobs_and_restart(before: usize, after: usize) -> String {
     let dir = tempfile::tempdir().unwrap();
     let batch_file = dir.path().join("replay.json");
     std::fs::write(&batch_file, replay_batch(3, 2.0).to_string()).unwrap();
     let db = dir.path().join("up.db");
-    let mut first = up_command(&db, 1)
+    let mut first = up_command(&db, before)
         .args(["--lease-s", "3600", "--submit"])
         .arg(&batch_file)
         .stdout(std::process::Stdio::piped())
@@ -421,18 +444,57 @@ fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_bat
         .spawn()
         .unwrap();
     let mut lines = std::io::BufRead::lines(std::io::BufReader::new(first.stdout.take().unwrap()));
+    let url = lines
+        .by_ref()
+        .map(Result::unwrap)
+        .find_map(|l| {
+            l.strip_prefix("repose up: server ")
+                .and_then(|rest| rest.split(',').next())
+                .map(str::to_owned)
+        })
+        .expect("the server's address");
     let submitted = lines
         .by_ref()
         .map(Result::unwrap)
         .find(|l| l.starts_with("submitted "))
         .expect("the batch is submitted");
-    std::thread::sleep(Duration::from_millis(500));
+    let tokens = std::fs::read_to_string(dir.path().join("up.db.tokens.env")).unwrap();
+    let user = tokens
+        .lines()
+        .find_map(|l| l.strip_prefix("export REPOSE_TOKEN="))
+        .unwrap()
+        .to_owned();
+    // Every worker holds a job before the kill.
+    let http = reqwest::blocking::Client::new();
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    loop {
+        let workers: Value = http
+            .get(format!("{url}/v1/workers"))
+            .bearer_auth(&user)
+            .send()
+            .and_then(|r| r.json())
+            .unwrap();
+        let busy = workers
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|w| w["running_jobs"] == 1)
+            .count();
+        if busy == before {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the workers did not all take a job: {workers}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     first.kill().unwrap();
     first.wait().unwrap();
 
     // Output to files: a pipe nobody reads while we wait could fill and stall the process.
     let (out_path, err_path) = (dir.path().join("out.txt"), dir.path().join("err.txt"));
-    let mut second = up_command(&db, 1)
+    let mut second = up_command(&db, after)
         .args(["--lease-s", "3600", "--exit-when-done"])
         .stdout(std::fs::File::create(&out_path).unwrap())
         .stderr(std::fs::File::create(&err_path).unwrap())
@@ -467,6 +529,7 @@ fn repose_up_killed_mid_batch_and_restarted_with_exit_when_done_finishes_the_bat
         )),
         "{submitted}\n{stdout}"
     );
+    stdout
 }
 
 #[test]
