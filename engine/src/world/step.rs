@@ -177,6 +177,7 @@ impl World {
             .zip(p.velocity.par_chunks_mut(CHUNK))
             .zip(p.angular_velocity.par_chunks_mut(CHUNK))
             .enumerate()
+            .with_max_len(1)
             .map(|(c, ((x, v), w))| {
                 let base = c * CHUNK;
                 let mut rebuild = false;
