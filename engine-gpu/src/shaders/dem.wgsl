@@ -79,6 +79,12 @@ struct Tri {
 // not be storage and indirect in one dispatch).
 @group(2) @binding(0) var<storage, read_write> ind: array<u32>;
 
+// Slot k of particle i's neighbour list (and springs, wall histories): column-major, so the
+// threads of a workgroup read consecutive words.
+fn slot(i: u32, k: u32) -> u32 {
+    return k * P.n + i;
+}
+
 fn alive(i: u32) -> bool {
     return cell[i].w >= 0;
 }
@@ -322,18 +328,17 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
     // Carry the springs of pairs that were already listed (both lists are sorted).
     let old_count = nbn[i];
     var k = 0u;
-    let base = i * CAP;
     for (var a = 0u; a < count; a++) {
         let j = list[a];
-        while (k < old_count && nbr[base + k] < j) {
+        while (k < old_count && nbr[slot(i, k)] < j) {
             k++;
         }
         var s = vec4<f32>(0.0);
-        if (k < old_count && nbr[base + k] == j) {
-            s = spr[base + k];
+        if (k < old_count && nbr[slot(i, k)] == j) {
+            s = spr[slot(i, k)];
         }
-        nbr2[base + a] = j;
-        spr2[base + a] = s;
+        nbr2[slot(i, a)] = j;
+        spr2[slot(i, a)] = s;
     }
     nbn2[i] = count;
 }
@@ -346,10 +351,9 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let count = nbn2[i];
     nbn[i] = count;
-    let base = i * CAP;
     for (var a = 0u; a < count; a++) {
-        nbr[base + a] = nbr2[base + a];
-        spr[base + a] = spr2[base + a];
+        nbr[slot(i, a)] = nbr2[slot(i, a)];
+        spr[slot(i, a)] = spr2[slot(i, a)];
     }
 }
 
@@ -434,15 +438,14 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     var tq = vec3<f32>(0.0);
     var moment = 0.0;
     var touching = 0.0;
-    let base = i * CAP;
     let count = nbn[i];
     for (var k = 0u; k < count; k++) {
-        let j = nbr[base + k];
+        let j = nbr[slot(i, k)];
         if (!alive(j)) {
-            spr[base + k] = vec4<f32>(0.0);
+            spr[slot(i, k)] = vec4<f32>(0.0);
             continue;
         }
-        let s = spr[base + k].xyz;
+        let s = spr[slot(i, k)].xyz;
         if (i < j) {
             let o = pair_contact(i, j, s);
             if (o.touching) {
@@ -451,7 +454,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
                 moment += o.moment_a;
                 touching += 1.0;
             }
-            spr[base + k] = vec4<f32>(o.spring, 0.0);
+            spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
         } else {
             let o = pair_contact(j, i, s);
             if (o.touching) {
@@ -460,7 +463,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
                 moment += o.moment_b;
                 touching += 1.0;
             }
-            spr[base + k] = vec4<f32>(o.spring, 0.0);
+            spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
         }
     }
 
@@ -540,18 +543,17 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     // Each contact takes the spring of the previous contact whose normal is closest (> 0.9).
-    let wbase = i * WCAP * 2u;
     var old_n: array<vec4<f32>, WCAP>;
     var old_s: array<vec4<f32>, WCAP>;
     for (var h = 0u; h < WCAP; h++) {
-        old_n[h] = walls[wbase + 2u * h];
-        old_s[h] = walls[wbase + 2u * h + 1u];
+        old_n[h] = walls[slot(i, 2u * h)];
+        old_s[h] = walls[slot(i, 2u * h + 1u)];
     }
     let wi = omg[i].xyz;
     for (var a = 0u; a < WCAP; a++) {
         if (a >= kept) {
-            walls[wbase + 2u * a] = vec4<f32>(0.0);
-            walls[wbase + 2u * a + 1u] = vec4<f32>(0.0);
+            walls[slot(i, 2u * a)] = vec4<f32>(0.0);
+            walls[slot(i, 2u * a + 1u)] = vec4<f32>(0.0);
             continue;
         }
         let tc = cand[a];
@@ -573,8 +575,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         f += h.force;
         tq += cross(arm, h.force);
         moment += c.b.y * h.normal_force * length(arm);
-        walls[wbase + 2u * a] = vec4<f32>(tc.normal, 1.0);
-        walls[wbase + 2u * a + 1u] = vec4<f32>(h.spring, 0.0);
+        walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, 1.0);
+        walls[slot(i, 2u * a + 1u)] = vec4<f32>(h.spring, 0.0);
     }
     frc[i] = vec4<f32>(f, moment);
     trq[i] = vec4<f32>(tq, touching);
