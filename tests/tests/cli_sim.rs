@@ -140,3 +140,72 @@ fn example_scenes_parse_and_validate() {
     }
     assert!(seen >= 1);
 }
+
+/// `repose bench engine --backend gpu` where no Vulkan driver can be found: a clear error naming
+/// the problem and the flag, exit non-zero, no fall back to the CPU engine.
+#[test]
+fn bench_engine_on_the_gpu_without_an_adapter_names_the_problem() {
+    let out = std::process::Command::new(common::repose_bin())
+        .args(["bench", "engine", "--backend", "gpu", "--particles", "200"])
+        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
+        .output()
+        .expect("spawning repose");
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("--backend gpu") && err.contains("no GPU adapter"),
+        "{err}"
+    );
+    assert!(
+        !stdout(&out).contains(" cpu ") && !stdout(&out).lines().any(|l| l.contains(" 1 ")),
+        "{}",
+        stdout(&out)
+    );
+}
+
+/// The GPU engine times a small bed and the CPU engine on the same bed (on lavapipe in CI;
+/// skipped with a message where no Vulkan adapter exists at all).
+#[test]
+fn bench_engine_on_the_gpu_times_the_gpu_and_the_cpu_on_one_bed() {
+    let out = repose(&[
+        "bench",
+        "engine",
+        "--backend",
+        "gpu",
+        "--particles",
+        "300",
+        "--steps",
+        "20",
+        "--cpu-steps",
+        "20",
+        "--threads",
+        "1",
+        "--json",
+    ]);
+    let err = stderr(&out);
+    if !out.status.success() && err.contains("no GPU adapter") {
+        assert!(
+            std::env::var("REPOSE_REQUIRE_GPU").map_or(true, |v| v != "1"),
+            "REPOSE_REQUIRE_GPU=1 but: {err}"
+        );
+        eprintln!("SKIPPED: {err}");
+        return;
+    }
+    assert!(out.status.success(), "{err}");
+    let rows: Vec<serde_json::Value> = stdout(&out)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    assert_eq!(rows[0]["backend"], "cpu");
+    assert_eq!(rows[1]["backend"], "gpu");
+    for row in &rows {
+        assert_eq!(row["particles"], 300);
+        assert!(row["mega_particle_steps_per_s"].as_f64().unwrap() > 0.0);
+        // The same settled bed: a dense packing, a handful of contacts per grain on both.
+        let contacts = row["contacts_per_particle"].as_f64().unwrap();
+        assert!((3.0..8.0).contains(&contacts), "{row}");
+    }
+    assert!(rows[1]["speedup_vs_1_thread"].as_f64().is_some());
+}
