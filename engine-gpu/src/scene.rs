@@ -374,7 +374,10 @@ mod tests {
             let (c, o) = g.to_voxel(p);
             let back = g.to_position(c, o);
             assert!((back - p).norm() < 1e-9, "{p:?} -> {back:?}");
-            assert!(o.iter().zip(g.voxel.iter()).all(|(&o, &v)| o >= 0.0 && (o as f64) < v));
+            assert!(o
+                .iter()
+                .zip(g.voxel.iter())
+                .all(|(&o, &v)| o >= 0.0 && (o as f64) < v));
         }
     }
 

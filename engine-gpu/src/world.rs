@@ -137,6 +137,9 @@ impl GpuWorld {
         }
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
+        // Allocation and pipeline errors come back as errors, not as wgpu's default panic.
+        device.push_error_scope(wgpu::ErrorFilter::Validation);
+        device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let storage = wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_SRC
             | wgpu::BufferUsages::COPY_DST;
@@ -304,6 +307,12 @@ impl GpuWorld {
             half_kick: pipeline("half_kick", &layout),
             fastest: pipeline("fastest", &layout),
         };
+        if let Some(e) = pollster::block_on(device.pop_error_scope()) {
+            return Err(GpuError::Capacity(format!("allocating {bytes} bytes: {e}")));
+        }
+        if let Some(e) = pollster::block_on(device.pop_error_scope()) {
+            return Err(GpuError::Lost(format!("creating the pipelines: {e}")));
+        }
         let gpu_world = GpuWorld {
             device,
             queue,
