@@ -159,8 +159,10 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
 
 pub fn run(args: &UpArgs) -> Result<()> {
     let config = config(args)?;
-    // Warnings only by default: the progress bar and the analysis are the output here.
-    crate::init_logging("warn");
+    // Warnings, and the server's one line per failed run, by default: the progress bar and the
+    // analysis are the output here. The local workers' own lines about the same failures are
+    // INFO under their crate's target, so each event shows once.
+    crate::init_logging(&format!("warn,{}=info", repose_server::RUNS_LOG_TARGET));
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     runtime.block_on(up(config))
 }

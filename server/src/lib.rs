@@ -39,6 +39,7 @@ pub mod tokens;
 pub use auth::{Access, TokenRole};
 pub use db::{backup, BackupError, BackupReport};
 pub use error::AppError;
+pub use orchestrate::RUNS_LOG_TARGET;
 pub use routes::{app, Endpoint, Verb, ENDPOINTS};
 pub use tokens::{create_token, list_tokens, revoke_token, TokenInfo};
 

@@ -4,7 +4,7 @@
 //! an expiry finished).
 
 use axum::Json;
-use repose_api::JobUpdateResponse;
+use repose_api::{JobUpdateResponse, RunState};
 use uuid::Uuid;
 
 use crate::db::JobUpdate;
@@ -29,6 +29,26 @@ pub fn job_updated(state: &AppState, job_id: Uuid, update: JobUpdate) -> Json<Jo
     Json(JobUpdateResponse {
         status: update.status,
     })
+}
+
+/// The target of the server's lines about runs that failed: one line per failed attempt,
+/// naming the run, so that `repose up` (whose own workers report the same failures) can show
+/// these alone.
+pub const RUNS_LOG_TARGET: &str = "repose::runs";
+
+/// Logs a failed attempt once, as what became of the run: run again under another seed (a
+/// seed-dependent failure such as an arch: INFO), queued for a retry (INFO), or dead (WARN).
+pub fn job_failed(job_id: Uuid, update: &JobUpdate, error: &str) {
+    let (batch, run) = (update.batch_id, update.run_index);
+    match (update.reseeded, update.status) {
+        (Some(seed), _) => tracing::info!(target: RUNS_LOG_TARGET, %batch, %job_id, %error,
+            "run {run} runs again under seed {seed}: this seed gave no result"),
+        (None, RunState::Dead) => {
+            tracing::warn!(target: RUNS_LOG_TARGET, %batch, %job_id, %error, "run {run} is dead")
+        }
+        (None, _) => tracing::info!(target: RUNS_LOG_TARGET, %batch, %job_id, %error,
+            "run {run} failed; it will be retried"),
+    }
 }
 
 /// A batch was cancelled: a campaign waiting on it stops and says why.

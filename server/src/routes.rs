@@ -704,7 +704,7 @@ async fn fail_job(
         .fail(job_id, failure.lease_token, &failure.error, rerun)
         .await?;
     state.metrics.failed();
-    tracing::warn!(job = %job_id, error = %failure.error, status = ?update.status, "job failed");
+    orchestrate::job_failed(job_id, &update, &failure.error);
     Ok(orchestrate::job_updated(&state, job_id, update))
 }
 

@@ -556,6 +556,201 @@ fn repose_up_names_each_dead_run_and_why_it_failed() {
     assert!(line.contains("no row matching"), "{line}");
 }
 
+/// A `formula` batch of four runs at x = 0, 1, 2, 3 whose last run is in its failure region.
+fn formula_batch_with_a_dead_run() -> Value {
+    json!({
+        "name": "formula",
+        "experiment": {"kind": "formula", "spec": {
+            "inputs": {"x": 0.0}, "responses": {"y": "10 + 2*x"}, "fails_when": "x > 2.5"}},
+        "factors": [{"name": "x", "path": "inputs.x", "low": 0.0, "high": 3.0}],
+        "design": {"type": "explicit", "points": [[0.0], [1.0], [2.0], [3.0]]},
+        "response": "y",
+        "model": "linear",
+        "seed": 9
+    })
+}
+
+#[test]
+fn repose_up_logs_a_dead_run_once_and_without_colour_when_stderr_is_not_a_terminal() {
+    // stderr is a pipe here: no colour escapes, even with NO_COLOR unset; and the dead run is
+    // one line (the server's), not the local worker's copy of it as well.
+    let dir = tempfile::tempdir().unwrap();
+    let batch_file = dir.path().join("formula.json");
+    std::fs::write(&batch_file, formula_batch_with_a_dead_run().to_string()).unwrap();
+    let out = up_command(&dir.path().join("up.db"), 1)
+        .env_remove("NO_COLOR")
+        .env_remove("RUST_LOG")
+        .arg("--exit-when-done")
+        .arg("--submit")
+        .arg(&batch_file)
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (common::stdout(&out), common::stderr(&out));
+    assert!(stdout.contains("3 completed, 1 dead"), "{stdout}\n{stderr}");
+    assert!(
+        !out.stderr.contains(&0x1b),
+        "escape codes in stderr: {stderr:?}"
+    );
+    // The run order is randomised: stdout's "dead run N (x 3): …" says which run it is.
+    let index = stdout
+        .lines()
+        .find_map(|l| l.trim_start().strip_prefix("dead run "))
+        .and_then(|rest| rest.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no dead run: {stdout}"));
+    let dead: Vec<&str> = stderr.lines().filter(|l| l.contains("is dead")).collect();
+    assert_eq!(dead.len(), 1, "one line for the dead run: {stderr}");
+    assert!(
+        dead[0].contains("WARN")
+            && dead[0].contains(&format!("run {index} is dead"))
+            && dead[0].contains("fails_when holds"),
+        "{stderr}"
+    );
+    assert!(
+        !stderr.contains("job failed"),
+        "the worker's copy shows too: {stderr}"
+    );
+}
+
+#[test]
+fn repose_up_logs_a_reseeded_run_as_one_info_line_naming_it() {
+    // A worker of the test's own (over HTTP) reports a seed-dependent failure (as an arch
+    // is), then the result under the new seed; `repose up`'s stderr has one INFO line for the
+    // reseed, naming the run, and no escape codes.
+    let dir = tempfile::tempdir().unwrap();
+    let batch_file = dir.path().join("replay.json");
+    // The local worker holds its job long enough for the test's worker to do its part.
+    std::fs::write(&batch_file, replay_batch(2, 4.0).to_string()).unwrap();
+    let err_path = dir.path().join("err.txt");
+    let mut up = up_command(&dir.path().join("up.db"), 1)
+        .env_remove("NO_COLOR")
+        .env_remove("RUST_LOG")
+        .args(["--exit-when-done", "--submit"])
+        .arg(&batch_file)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(up.stdout.take().unwrap()));
+    let url = lines
+        .by_ref()
+        .map(Result::unwrap)
+        .find_map(|l| {
+            l.strip_prefix("repose up: server ")
+                .and_then(|rest| rest.split(',').next())
+                .map(str::to_owned)
+        })
+        .expect("the server's address");
+    // Drain stdout in the background so `repose up` never blocks on a full pipe.
+    let drained = std::thread::spawn(move || lines.map_while(Result::ok).collect::<Vec<_>>());
+    let tokens = std::fs::read_to_string(dir.path().join("up.db.tokens.env")).unwrap();
+    let token = |name: &str| {
+        tokens
+            .lines()
+            .find_map(|l| l.strip_prefix(&format!("export {name}=")))
+            .unwrap()
+            .to_owned()
+    };
+    let (user, worker) = (token("REPOSE_TOKEN"), token("REPOSE_WORKER_TOKEN"));
+    let http = reqwest::blocking::Client::new();
+    let post = |path: &str, body: Value| -> (u16, Value) {
+        let reply = http
+            .post(format!("{url}{path}"))
+            .bearer_auth(&worker)
+            .json(&body)
+            .send()
+            .unwrap();
+        let status = reply.status().as_u16();
+        (status, reply.json().unwrap_or(Value::Null))
+    };
+    // The local worker holds one job first, so the other is ours, before and after the reseed.
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    while !http
+        .get(format!("{url}/v1/workers"))
+        .bearer_auth(&user)
+        .send()
+        .and_then(|r| r.json::<Value>())
+        .unwrap()
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|w| w["running_jobs"] == 1)
+    {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the local worker took no job"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let me = "6f1c1c4e-8d2a-4c47-9a5e-2f6a3c1d0b01";
+    let (status, body) = post(
+        "/v1/workers/register",
+        json!({"instance_id": me, "host": "test", "threads": 1,
+               "version": repose_api::version::RELEASE}),
+    );
+    assert_eq!(status, 200, "{body}");
+    let claim = || {
+        let (status, job) = post("/v1/jobs/claim", json!({"worker_id": me, "wait_s": 5.0}));
+        assert_eq!(status, 200, "{job}");
+        job
+    };
+    let job = claim();
+    let (status, body) = post(
+        &format!("/v1/jobs/{}/fail", job["job_id"].as_str().unwrap()),
+        json!({"lease_token": job["lease_token"], "error": "grains arched over the outlet",
+               "another_seed": true}),
+    );
+    assert_eq!(status, 200, "{body}");
+    let again = claim();
+    assert_eq!(again["run_id"], job["run_id"], "{again}");
+    assert_ne!(again["seed"], job["seed"], "{again}");
+    let (status, body) = post(
+        &format!("/v1/jobs/{}/complete", again["job_id"].as_str().unwrap()),
+        json!({"lease_token": again["lease_token"], "metrics": {"y": 11.0},
+               "wall_time_s": 0.1}),
+    );
+    assert_eq!(status, 200, "{body}");
+    let runs: Value = http
+        .get(format!(
+            "{url}/v1/batches/{}/runs",
+            job["batch_id"].as_str().unwrap()
+        ))
+        .bearer_auth(&user)
+        .send()
+        .and_then(|r| r.json())
+        .unwrap();
+    let index = runs
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["id"] == job["run_id"])
+        .unwrap()["run_index"]
+        .clone();
+
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    while up.try_wait().unwrap().is_none() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "repose up did not finish"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let stdout = drained.join().unwrap().join("\n");
+    let stderr = std::fs::read(&err_path).unwrap();
+    let text = String::from_utf8_lossy(&stderr);
+    assert!(up.wait().unwrap().success(), "{stdout}\n{text}");
+    assert!(!stderr.contains(&0x1b), "escape codes in stderr: {text:?}");
+    let reseeds: Vec<&str> = text.lines().filter(|l| l.contains("arched")).collect();
+    assert_eq!(reseeds.len(), 1, "one line for the reseed: {text}");
+    assert!(
+        reseeds[0].contains("INFO")
+            && reseeds[0].contains(&format!(
+                "run {index} runs again under seed {}",
+                again["seed"]
+            )),
+        "{text}"
+    );
+}
+
 #[test]
 fn repose_up_runs_a_submitted_batch_to_its_analysis_and_writes_the_tokens() {
     let dir = tempfile::tempdir().unwrap();

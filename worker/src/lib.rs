@@ -506,7 +506,8 @@ async fn report_failure(
     error: String,
     rerun: Rerun,
 ) -> JobEnd {
-    tracing::warn!(job = %job.job_id, %error, ?rerun, "job failed");
+    // INFO: the server logs what became of the run (in `repose up` that line alone shows).
+    tracing::info!(job = %job.job_id, run = %job.run_id, %error, ?rerun, "job failed");
     let failure = Failure {
         lease_token: job.lease_token,
         error,

@@ -33,6 +33,10 @@ pub struct Expired {
 pub struct JobUpdate {
     /// The job's batch.
     pub batch_id: Uuid,
+    /// The run's position in its batch's run order.
+    pub run_index: u32,
+    /// The run's new seed, when a failure ran it again under another seed.
+    pub reseeded: Option<u64>,
     /// State of the run afterwards.
     pub status: RunState,
     /// This update finished the batch (its last unfinished job), so the analysis is due.
@@ -58,6 +62,7 @@ pub(super) struct LeaseLookup {
     current_token: Option<String>,
     attempts: i64,
     run_id: String,
+    run_index: i64,
     /// The run's seed (stored bit for bit as i64).
     seed: i64,
     batch_id: String,
@@ -472,7 +477,7 @@ pub(super) async fn lookup_lease(
 ) -> Result<LeaseLookup, DbError> {
     let row = sqlx::query(
         "SELECT l.outcome, l.worker_id, j.state, j.lease_token, j.attempts, j.run_id, j.batch_id,
-                r.seed, r.metrics IS NOT NULL AS has_result, b.response, b.state AS batch_state
+                r.run_index, r.seed, r.metrics IS NOT NULL AS has_result, b.response, b.state AS batch_state
          FROM leases l
          JOIN jobs j ON j.id = l.job_id
          JOIN runs r ON r.id = j.run_id
@@ -505,6 +510,7 @@ pub(super) async fn lookup_lease(
         current_token: row.try_get("lease_token")?,
         attempts: row.try_get("attempts")?,
         run_id: row.try_get("run_id")?,
+        run_index: row.try_get("run_index")?,
         seed: row.try_get("seed")?,
         batch_id: row.try_get("batch_id")?,
         has_result: row.try_get("has_result")?,
@@ -696,6 +702,8 @@ pub(super) async fn complete_in(
 
     Ok(JobUpdate {
         batch_id: parse_uuid(&found.batch_id)?,
+        run_index: found.run_index as u32,
+        reseeded: None,
         status: RunState::Completed,
         batch_finished,
         requeued: false,
@@ -733,10 +741,13 @@ pub(super) async fn fail_in(
     } else {
         JobState::Queued
     };
+    let mut reseeded = None;
     if let (false, Rerun::WithAnotherSeed { next_seed, .. }) = (dead, rerun) {
+        let seed = next_seed(found.seed as u64);
+        reseeded = Some(seed);
         // Seeds are stored bit for bit as i64.
         sqlx::query("UPDATE runs SET seed = ? WHERE id = ?")
-            .bind(next_seed(found.seed as u64) as i64)
+            .bind(seed as i64)
             .bind(&found.run_id)
             .execute(&mut **tx)
             .await?;
@@ -770,6 +781,8 @@ pub(super) async fn fail_in(
 
     Ok(JobUpdate {
         batch_id: parse_uuid(&found.batch_id)?,
+        run_index: found.run_index as u32,
+        reseeded,
         status: state.into(),
         batch_finished,
         requeued: !dead,
@@ -831,6 +844,8 @@ pub(super) async fn release_in(
 
     Ok(JobUpdate {
         batch_id: parse_uuid(&found.batch_id)?,
+        run_index: found.run_index as u32,
+        reseeded: None,
         status: RunState::Queued,
         batch_finished: false,
         requeued: true,
