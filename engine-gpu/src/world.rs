@@ -81,14 +81,14 @@ pub struct GpuWorld {
     grid: Grid,
     integrator: Integrator,
     n: usize,
+    /// Neighbour grid cells.
+    cells: usize,
     radius: Vec<f64>,
     pipelines: Pipelines,
     buffers: Buffers,
     main_group: wgpu::BindGroup,
     step_params: wgpu::BindGroup,
     start_params: wgpu::BindGroup,
-    indirect_group: wgpu::BindGroup,
-    indirect: wgpu::Buffer,
     time: f64,
     time_step: f64,
     steps: u64,
@@ -188,12 +188,6 @@ impl GpuWorld {
         let binn = zeroed("binn", cells * 4);
         let walls = zeroed("walls", n64 * WALL_CAPACITY as u64 * 32);
         let ctl = zeroed("ctl", ctl::WORDS as u64 * 4);
-        let indirect = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("indirect"),
-            size: 32,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
-            mapped_at_creation: false,
-        });
 
         let storage_entry = |binding: u32| wgpu::BindGroupLayoutEntry {
             binding,
@@ -221,10 +215,6 @@ impl GpuWorld {
                 },
                 count: None,
             }],
-        });
-        let indirect_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("indirect"),
-            entries: &[storage_entry(0)],
         });
         let all: [&wgpu::Buffer; 19] = [
             &cell, &off, &vel, &omg, &frc, &trq, &disp, &nbr, &nbn, &spr, &nbr2, &nbn2, &spr2,
@@ -262,14 +252,6 @@ impl GpuWorld {
         let mut start = scene.params;
         start.misc[0] = 0.0;
         let start_params = params_group(&start);
-        let indirect_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("indirect"),
-            layout: &indirect_layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: indirect.as_entire_binding(),
-            }],
-        });
 
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("dem.wgsl"),
@@ -278,11 +260,6 @@ impl GpuWorld {
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("step"),
             bind_group_layouts: &[&main_layout, &params_layout],
-            push_constant_ranges: &[],
-        });
-        let arm_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("arm"),
-            bind_group_layouts: &[&main_layout, &params_layout, &indirect_layout],
             push_constant_ranges: &[],
         });
         let pipeline = |entry: &str, layout: &wgpu::PipelineLayout| {
@@ -300,7 +277,7 @@ impl GpuWorld {
             bin: pipeline("bin", &layout),
             build: pipeline("build", &layout),
             commit: pipeline("commit", &layout),
-            arm: pipeline("arm", &arm_layout),
+            arm: pipeline("arm", &layout),
             forces: pipeline("forces", &layout),
             euler: pipeline("euler", &layout),
             kick_drift: pipeline("kick_drift", &layout),
@@ -319,6 +296,7 @@ impl GpuWorld {
             grid: scene.grid,
             integrator: scene.integrator,
             n,
+            cells: scene.grid.cells(),
             radius: scene.radius,
             pipelines,
             buffers: Buffers {
@@ -334,8 +312,6 @@ impl GpuWorld {
             main_group,
             step_params,
             start_params,
-            indirect_group,
-            indirect,
             time: world.time(),
             time_step: world.config().time_step,
             steps: 0,
@@ -388,17 +364,15 @@ impl GpuWorld {
         pass.dispatch_workgroups(groups(count), 1, 1);
     }
 
-    /// Arms the rebuild (indirect arguments: zero groups when none is wanted) and runs it.
+    /// Decides whether this step rebuilds the neighbour lists and runs the rebuild kernels
+    /// (each a no-op unless it does: no GPU-written dispatch sizes, no read-back).
     fn rebuild_phase(&self, pass: &mut wgpu::ComputePass) {
         let p = &self.pipelines;
         pass.set_pipeline(&p.arm);
-        pass.set_bind_group(2, &self.indirect_group, &[]);
         pass.dispatch_workgroups(1, 1, 1);
-        pass.set_pipeline(&p.clear_bins);
-        pass.dispatch_workgroups_indirect(&self.indirect, 12);
+        self.dispatch(pass, &p.clear_bins, self.cells);
         for pipeline in [&p.bin, &p.build, &p.commit] {
-            pass.set_pipeline(pipeline);
-            pass.dispatch_workgroups_indirect(&self.indirect, 0);
+            self.dispatch(pass, pipeline, self.n);
         }
     }
 

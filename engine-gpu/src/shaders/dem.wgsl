@@ -71,13 +71,9 @@ struct Tri {
 @group(0) @binding(16) var<storage, read_write> tris: array<Tri>;
 @group(0) @binding(17) var<storage, read_write> pc: array<PairC>;
 // 0 rebuild wanted, 1 rebuilds, 2 neighbour overflow, 3 bin overflow, 4 removed,
-// 5 fastest speed (f32 bits, max), 6 triangle contact overflow
+// 5 fastest speed (f32 bits, max), 6 triangle contact overflow, 7 rebuilding this step
 @group(0) @binding(18) var<storage, read_write> ctl: array<atomic<u32>>;
 @group(1) @binding(0) var<uniform> P: Params;
-
-// Only the arming kernel writes the indirect arguments (their own bind group: a buffer may
-// not be storage and indirect in one dispatch).
-@group(2) @binding(0) var<storage, read_write> ind: array<u32>;
 
 // Slot k of particle i's neighbour list (and springs, wall histories): column-major, so the
 // threads of a workgroup read consecutive words.
@@ -235,12 +231,16 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>) -> PairOut {
     return o;
 }
 
-// ---- neighbour rebuild (dispatched indirectly: zero groups when no rebuild is wanted) ----
+// ---- neighbour rebuild: dispatched every step, a no-op unless `arm` decided to rebuild ----
+
+fn rebuilding() -> bool {
+    return atomicLoad(&ctl[7]) != 0u;
+}
 
 @compute @workgroup_size(WG)
 fn clear_bins(@builtin(global_invocation_id) gid: vec3<u32>) {
     let c = gid.x;
-    if (c >= P.ncells) {
+    if (!rebuilding() || c >= P.ncells) {
         return;
     }
     atomicStore(&binn[c], 0u);
@@ -249,7 +249,7 @@ fn clear_bins(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(WG)
 fn bin(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
-    if (i >= P.n || !alive(i)) {
+    if (!rebuilding() || i >= P.n || !alive(i)) {
         return;
     }
     let c = cell_index(cell[i].xyz);
@@ -264,7 +264,7 @@ fn bin(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(WG)
 fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
-    if (i >= P.n) {
+    if (!rebuilding() || i >= P.n) {
         return;
     }
     disp[i] = vec4<f32>(0.0);
@@ -346,7 +346,7 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(WG)
 fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
-    if (i >= P.n) {
+    if (!rebuilding() || i >= P.n) {
         return;
     }
     let count = nbn2[i];
@@ -357,21 +357,14 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
+// Decides, once per step, whether this step rebuilds (a particle moved half a skin).
 @compute @workgroup_size(1)
 fn arm() {
     let wanted = atomicExchange(&ctl[0], 0u);
+    atomicStore(&ctl[7], wanted);
     if (wanted != 0u) {
         atomicAdd(&ctl[1], 1u);
-        ind[0] = (P.n + WG - 1u) / WG;
-        ind[3] = (P.ncells + WG - 1u) / WG;
-    } else {
-        ind[0] = 0u;
-        ind[3] = 0u;
     }
-    ind[1] = 1u;
-    ind[2] = 1u;
-    ind[4] = 1u;
-    ind[5] = 1u;
 }
 
 // ---- forces ----
