@@ -438,26 +438,18 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
             spr[slot(i, k)] = vec4<f32>(0.0);
             continue;
         }
-        let s = spr[slot(i, k)].xyz;
-        if (i < j) {
-            let o = pair_contact(i, j, s);
-            if (o.touching) {
-                f += o.force;
-                tq += o.torque_a;
-                moment += o.moment_a;
-                touching += 1.0;
-            }
-            spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
-        } else {
-            let o = pair_contact(j, i, s);
-            if (o.touching) {
-                f -= o.force;
-                tq += o.torque_b;
-                moment += o.moment_b;
-                touching += 1.0;
-            }
-            spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
+        // One call site for both orientations: the two particles of a pair run the same
+        // instructions on the same arguments (lower index first), so their copies of the pair's
+        // force and spring are the same bits.
+        let lower = i < j;
+        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)].xyz);
+        if (o.touching) {
+            f += select(-o.force, o.force, lower);
+            tq += select(o.torque_b, o.torque_a, lower);
+            moment += select(o.moment_b, o.moment_a, lower);
+            touching += 1.0;
         }
+        spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
     }
 
     // Triangles, in mesh order; a point found twice (a shared edge or corner) counts once,
