@@ -360,3 +360,38 @@ fn cdt_rolling_friction_decelerates_at_five_sevenths_mu_r_g() {
     println!("CDT deceleration {measured:.5} m/s² (theory {expected:.5})");
     assert!((measured / expected - 1.0).abs() < 0.02);
 }
+
+#[test]
+fn a_colliding_cloud_conserves_momentum_to_f32_rounding() {
+    use rand::{Rng, SeedableRng};
+    let Some(gpu) = common::gpu() else { return };
+    let r = 1.0e-3;
+    let domain = Domain::closed(Vec3::repeat(-0.05), Vec3::repeat(0.05));
+    let materials = table(0.5, 0.5, 0.1);
+    let dt = materials.rayleigh_time_step(BALL, r, 0.2);
+    let mut w = world(materials, dt, Vec3::zeros(), domain);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    // A dense 8 × 8 × 8 lattice with random velocities: thousands of collisions, no walls.
+    for x in 0..8 {
+        for y in 0..8 {
+            for z in 0..8 {
+                let centre = Vec3::new(x as f64, y as f64, z as f64) * (2.05 * r);
+                let v = Vec3::from_fn(|_, _| rng.gen_range(-0.2..0.2));
+                w.add_particle(ball(centre, v, Vec3::zeros(), r)).unwrap();
+            }
+        }
+    }
+    let momentum = |v: &[Vec3]| v.iter().fold(Vec3::zeros(), |s, v| s + v);
+    let start = momentum(&w.particles().velocity);
+    let scale: f64 = w.particles().velocity.iter().map(|v| v.norm()).sum();
+    let mut g = GpuWorld::new(&gpu, &w).unwrap();
+    g.run(2000);
+    let p = g.particles().unwrap();
+    assert!(p.removed.iter().all(|r| !r));
+    assert!(p.contacts.iter().sum::<u32>() > 0 || g.counters().unwrap().rebuilds > 1);
+    let drift = (momentum(&p.velocity) - start).norm() / scale;
+    println!("momentum drift {drift:.2e} of the summed speeds over 2000 steps");
+    // Both particles of a pair apply the same bits with opposite signs: what remains is the
+    // rounding of the f32 velocity updates.
+    assert!(drift < 1e-5, "momentum drift {drift:e}");
+}
