@@ -24,6 +24,9 @@ pub struct GpuBenchResult {
     pub pairs_per_particle: f64,
     /// Neighbour-list rebuilds during the timed steps.
     pub rebuilds: u64,
+    /// The fastest grain at the end, m/s: a settled bed stays at rest (mm/s), so a large
+    /// figure says the run is not physical.
+    pub fastest_speed: f64,
 }
 
 /// The benchmark's bed of `particles` spheres, settled on the GPU: the CPU engine's lattice
@@ -87,5 +90,6 @@ pub fn time_steps(gpu: &Gpu, bed: &World, steps: u64) -> Result<GpuBenchResult, 
         contacts_per_particle: particles.contacts.iter().map(|&c| c as f64).sum::<f64>() / n,
         pairs_per_particle: world.pair_count()? as f64 / n,
         rebuilds: after.rebuilds - before.rebuilds,
+        fastest_speed: world.fastest_speed()?,
     })
 }

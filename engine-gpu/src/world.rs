@@ -48,6 +48,7 @@ struct Buffers {
     omg: wgpu::Buffer,
     trq: wgpu::Buffer,
     nbn: wgpu::Buffer,
+    nbr: wgpu::Buffer,
     ctl: wgpu::Buffer,
     bytes: u64,
 }
@@ -306,6 +307,7 @@ impl GpuWorld {
                 omg,
                 trq,
                 nbn,
+                nbr,
                 ctl,
                 bytes,
             },
@@ -538,6 +540,33 @@ impl GpuWorld {
     pub fn pair_count(&self) -> Result<usize, GpuError> {
         let counts: Vec<u32> = self.read(&self.buffers.nbn)?;
         Ok(counts.iter().map(|&c| c as usize).sum::<usize>() / 2)
+    }
+
+    /// Each particle's neighbour list (partner indices, ascending) as of the last rebuild.
+    pub fn neighbour_lists(&self) -> Result<Vec<Vec<u32>>, GpuError> {
+        let counts: Vec<u32> = self.read(&self.buffers.nbn)?;
+        let slots: Vec<u32> = self.read(&self.buffers.nbr)?;
+        Ok(counts
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| (0..c as usize).map(|k| slots[k * self.n + i]).collect())
+            .collect())
+    }
+
+    /// The voxel grid positions are held on.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The particles' voxels and offsets (as the shader holds them).
+    pub fn voxels(&self) -> Result<Vec<([i32; 3], [f32; 3])>, GpuError> {
+        let cell: Vec<[i32; 4]> = self.read(&self.buffers.cell)?;
+        let off: Vec<[f32; 4]> = self.read(&self.buffers.off)?;
+        Ok(cell
+            .iter()
+            .zip(&off)
+            .map(|(c, o)| ([c[0], c[1], c[2]], [o[0], o[1], o[2]]))
+            .collect())
     }
 
     /// The particles now.

@@ -61,3 +61,71 @@ fn the_same_run_twice_is_bit_identical() {
     assert_eq!(a.len(), b.len());
     assert!(a == b, "two runs of the same world differ");
 }
+
+/// Every pair touching now is in both particles' lists (built at the last rebuild, with a skin
+/// for the motion since), lists are ascending and symmetric — also across the periodic faces,
+/// in a lattice whose grains fly about without gravity.
+#[test]
+fn neighbour_lists_hold_every_touching_pair_across_periodic_faces() {
+    use rand::{Rng, SeedableRng};
+    let Some(gpu) = common::gpu() else { return };
+    let (mut world, _) = bed_lattice(600, 3).unwrap();
+    let mut json = serde_json::to_value(&world).unwrap();
+    json["config"]["gravity"] = serde_json::json!([0.0, 0.0, 0.0]);
+    world = serde_json::from_value(json).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    for v in world.particles_mut().velocity.iter_mut() {
+        *v =
+            repose_engine::math::Vec3::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), 0.0);
+    }
+    let radius = world.particles().radius.clone();
+    let mut g = GpuWorld::new(&gpu, &world).unwrap();
+    let mut touching_pairs = 0;
+    for _ in 0..4 {
+        g.run(50);
+        let lists = g.neighbour_lists().unwrap();
+        let voxels = g.voxels().unwrap();
+        let grid = *g.grid();
+        for (i, list) in lists.iter().enumerate() {
+            assert!(
+                list.windows(2).all(|w| w[0] < w[1]),
+                "list {i} not ascending: {list:?}"
+            );
+            for &j in list {
+                assert!(
+                    lists[j as usize].contains(&(i as u32)),
+                    "{j} in {i}'s list, not back"
+                );
+            }
+        }
+        for i in 0..voxels.len() {
+            for j in i + 1..voxels.len() {
+                let d = grid.difference(voxels[i], voxels[j]);
+                let dist = (d[0] as f64).hypot(d[1] as f64).hypot(d[2] as f64);
+                if dist < radius[i] + radius[j] {
+                    touching_pairs += 1;
+                    assert!(
+                        lists[i].contains(&(j as u32)),
+                        "step {}: {i} and {j} touch ({dist} m apart) but are not listed",
+                        g.steps()
+                    );
+                }
+            }
+        }
+    }
+    assert!(touching_pairs > 0, "the test saw no contact");
+    // No gravity, damped contacts: kinetic energy can only fall.
+    let kinetic = |v: &[repose_engine::math::Vec3]| -> f64 {
+        v.iter()
+            .zip(&world.particles().mass)
+            .map(|(v, m)| 0.5 * m * v.norm_squared())
+            .sum()
+    };
+    let start = kinetic(&world.particles().velocity);
+    let end = kinetic(&g.particles().unwrap().velocity);
+    println!("kinetic energy {start:.3e} J -> {end:.3e} J");
+    assert!(
+        end <= start * 1.000_1,
+        "kinetic energy rose from {start} J to {end} J"
+    );
+}
