@@ -20,6 +20,9 @@ pub const WALL_CAPACITY: usize = 4;
 /// Threads per workgroup (the shader's `WG`).
 pub const WORKGROUP: u32 = 128;
 
+/// A position as the GPU holds it: an integer voxel and the f32 offset inside it.
+pub type Voxel = ([i32; 3], [f32; 3]);
+
 /// The voxel grid: it places positions (integer voxel + offset) and bins the neighbour search.
 /// Periodic axes hold a whole number of voxels, so wrapping is an integer operation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,17 +77,17 @@ impl Grid {
     }
 
     /// `x` as a voxel and an offset in it (periodic axes wrapped into the grid).
-    pub fn to_voxel(&self, x: Vec3) -> ([i32; 3], [f32; 3]) {
+    pub fn to_voxel(&self, x: Vec3) -> Voxel {
         self.voxel_of(x, true)
     }
 
     /// `x` as a voxel and an offset, not wrapped: geometry stays where it is (a particle
     /// sees a triangle at its place, not at a periodic image).
-    pub fn to_voxel_unwrapped(&self, x: Vec3) -> ([i32; 3], [f32; 3]) {
+    pub fn to_voxel_unwrapped(&self, x: Vec3) -> Voxel {
         self.voxel_of(x, false)
     }
 
-    fn voxel_of(&self, x: Vec3, wrap: bool) -> ([i32; 3], [f32; 3]) {
+    fn voxel_of(&self, x: Vec3, wrap: bool) -> Voxel {
         let mut cell = [0i32; 3];
         let mut offset = [0f32; 3];
         for a in 0..3 {
@@ -112,7 +115,7 @@ impl Grid {
 
     /// The vector from `b` to `a` as the shader computes it (minimum image across periodic
     /// faces, integer voxel difference times the voxel plus the offsets' difference, in f32).
-    pub fn difference(&self, a: ([i32; 3], [f32; 3]), b: ([i32; 3], [f32; 3])) -> [f32; 3] {
+    pub fn difference(&self, a: Voxel, b: Voxel) -> [f32; 3] {
         std::array::from_fn(|k| {
             let mut dc = a.0[k] - b.0[k];
             if k < 2 && self.periodic[k] {

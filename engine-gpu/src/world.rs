@@ -7,7 +7,7 @@ use repose_engine::world::World;
 use wgpu::util::DeviceExt;
 
 use crate::scene::{
-    Grid, Params, Scene, BIN_CAPACITY, NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
+    Grid, Params, Scene, Voxel, BIN_CAPACITY, NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
 };
 use crate::{Gpu, GpuError};
 
@@ -559,7 +559,7 @@ impl GpuWorld {
     }
 
     /// The particles' voxels and offsets (as the shader holds them).
-    pub fn voxels(&self) -> Result<Vec<([i32; 3], [f32; 3])>, GpuError> {
+    pub fn voxels(&self) -> Result<Vec<Voxel>, GpuError> {
         let cell: Vec<[i32; 4]> = self.read(&self.buffers.cell)?;
         let off: Vec<[f32; 4]> = self.read(&self.buffers.off)?;
         Ok(cell
