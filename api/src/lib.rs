@@ -63,7 +63,8 @@ fn default_replicates() -> u32 {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExperimentTemplate {
-    /// Experiment type understood by the workers: `aor`, `drill`, `shear`, `table_lookup`.
+    /// Experiment type understood by the workers: `aor`, `drill`, `shear`, and the test aids
+    /// `table_lookup` and `formula`.
     pub kind: String,
     /// Named starting point for the spec (e.g. `fast` or `default` for `aor`); `spec` is merged
     /// over it, so it need only give what differs.

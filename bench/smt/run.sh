@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Does this host give two threads two whole cores? Three checks, each a run alone on vCPU 0
-# and then one copy per vCPU at the same time (results: BENCHMARKS.md, fifteenth session):
+# and then one copy per vCPU at the same time (results: docs/perf-log/2026-11.md, fifteenth session; current figures in BENCHMARKS.md):
 #   fp     a C loop of 64 independent multiply-add chains: throughput-bound on the FP units,
 #          so two vCPUs that are SMT siblings of one physical core would halve it;
 #   chase  a dependent pointer chase through 64 MiB: latency-bound, shares only the memory;

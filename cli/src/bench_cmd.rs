@@ -29,12 +29,21 @@ pub struct EngineBenchArgs {
     /// Particle counts, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "10000,40000,160000")]
     pub particles: Vec<usize>,
-    /// Thread counts, comma-separated.
+    /// Thread counts of the CPU engine, comma-separated. With `--backend gpu`, the CPU engine
+    /// is timed on the GPU-settled bed at these counts only if `--cpu-steps` is given.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     pub threads: Vec<usize>,
     /// Timed steps per measurement.
     #[arg(long, default_value_t = 2000)]
     pub steps: u64,
+    /// The engine: `cpu` (the reference) or `gpu` (wgpu: Vulkan, Metal, DX12). With `gpu` the
+    /// bed is settled on the GPU too.
+    #[arg(long, value_enum, default_value_t = crate::backend::Backend::Cpu)]
+    pub backend: crate::backend::Backend,
+    /// With `--backend gpu`: also time the CPU engine on the same bed, this many steps (the
+    /// CPU is slower: fewer steps give the same confidence).
+    #[arg(long)]
+    pub cpu_steps: Option<u64>,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Print JSON lines instead of a table.
@@ -45,10 +54,14 @@ pub struct EngineBenchArgs {
 #[derive(Debug, Serialize)]
 struct Row {
     particles: usize,
+    /// `cpu` or `gpu`.
+    backend: &'static str,
+    /// CPU threads (0 for the GPU).
     threads: usize,
     steps: u64,
     seconds: f64,
     mega_particle_steps_per_s: f64,
+    /// Against the CPU engine on one thread on the same bed, when measured.
     speedup_vs_1_thread: Option<f64>,
     contacts_per_particle: f64,
     pairs_per_particle: f64,
@@ -73,9 +86,17 @@ fn engine(args: &EngineBenchArgs) -> Result<()> {
     if args.threads.contains(&0) {
         bail!("--threads: each count must be at least 1");
     }
-    if args.steps == 0 {
-        bail!("--steps must be at least 1");
+    if args.steps == 0 || args.cpu_steps == Some(0) {
+        bail!("--steps and --cpu-steps must be at least 1");
     }
+    let gpu = match args.backend {
+        crate::backend::Backend::Gpu => {
+            let gpu = repose_engine_gpu::Gpu::open().context("--backend gpu")?;
+            eprintln!("GPU: {}", gpu.describe());
+            Some(gpu)
+        }
+        crate::backend::Backend::Cpu => None,
+    };
     if !args.json {
         println!(
             "{:>9} {:>7} {:>8} {:>10} {:>8} {:>9} {:>7} {:>9} {:>11}",
@@ -92,48 +113,96 @@ fn engine(args: &EngineBenchArgs) -> Result<()> {
     }
     for &n in &args.particles {
         let started = Instant::now();
-        let bed = settled_bed(n, args.seed).context("building the settled bed")?;
+        let bed = match &gpu {
+            Some(gpu) => {
+                repose_engine_gpu::bench::settled_bed(gpu, n, args.seed)
+                    .context("settling the bed on the GPU")?
+                    .0
+            }
+            None => settled_bed(n, args.seed).context("building the settled bed")?,
+        };
         let settle_seconds = started.elapsed().as_secs_f64();
         let mut single: Option<f64> = None;
-        for &threads in &args.threads {
-            let r: BenchResult = time_steps(&bed, threads, args.steps);
-            let rate = r.particle_steps_per_second / 1e6;
-            if threads == 1 {
-                single = Some(rate);
-            }
-            let row = Row {
-                particles: r.particles,
-                threads,
-                steps: r.steps,
-                seconds: r.seconds,
-                mega_particle_steps_per_s: rate,
-                speedup_vs_1_thread: single.map(|s| rate / s),
-                contacts_per_particle: r.contacts_per_particle,
-                pairs_per_particle: r.pairs_per_particle,
-                rebuilds: r.rebuilds,
-                model_bytes_per_particle: r.bytes_per_particle,
-                peak_rss_kib: peak_rss_kib(),
-                settle_seconds,
-            };
-            if args.json {
-                println!("{}", serde_json::to_string(&row)?);
-            } else {
-                println!(
-                    "{:>9} {:>7} {:>8.2} {:>10.2} {:>8} {:>9.2} {:>7.2} {:>9.0} {:>11}",
-                    row.particles,
-                    row.threads,
-                    row.seconds,
-                    row.mega_particle_steps_per_s,
-                    row.speedup_vs_1_thread
-                        .map_or("-".to_owned(), |s| format!("{s:.2}x")),
-                    row.contacts_per_particle,
-                    row.pairs_per_particle,
-                    row.model_bytes_per_particle,
-                    row.peak_rss_kib
-                        .map_or("-".to_owned(), |k| format!("{:.1}", k as f64 / 1024.0)),
-                );
+        let cpu_steps = match gpu {
+            Some(_) => args.cpu_steps,
+            None => Some(args.steps),
+        };
+        if let Some(steps) = cpu_steps {
+            for &threads in &args.threads {
+                let r: BenchResult = time_steps(&bed, threads, steps);
+                let rate = r.particle_steps_per_second / 1e6;
+                if threads == 1 {
+                    single = Some(rate);
+                }
+                print_row(
+                    args.json,
+                    &Row {
+                        particles: r.particles,
+                        backend: "cpu",
+                        threads,
+                        steps: r.steps,
+                        seconds: r.seconds,
+                        mega_particle_steps_per_s: rate,
+                        speedup_vs_1_thread: single.map(|s| rate / s),
+                        contacts_per_particle: r.contacts_per_particle,
+                        pairs_per_particle: r.pairs_per_particle,
+                        rebuilds: r.rebuilds,
+                        model_bytes_per_particle: r.bytes_per_particle,
+                        peak_rss_kib: peak_rss_kib(),
+                        settle_seconds,
+                    },
+                )?;
             }
         }
+        if let Some(gpu) = &gpu {
+            let r = repose_engine_gpu::bench::time_steps(gpu, &bed, args.steps)
+                .context("timing the GPU engine")?;
+            let rate = r.particle_steps_per_second / 1e6;
+            print_row(
+                args.json,
+                &Row {
+                    particles: r.particles,
+                    backend: "gpu",
+                    threads: 0,
+                    steps: r.steps,
+                    seconds: r.seconds,
+                    mega_particle_steps_per_s: rate,
+                    speedup_vs_1_thread: single.map(|s| rate / s),
+                    contacts_per_particle: r.contacts_per_particle,
+                    pairs_per_particle: r.pairs_per_particle,
+                    rebuilds: r.rebuilds,
+                    model_bytes_per_particle: r.bytes_per_particle,
+                    peak_rss_kib: peak_rss_kib(),
+                    settle_seconds,
+                },
+            )?;
+        }
+    }
+    Ok(())
+}
+
+fn print_row(json: bool, row: &Row) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(row)?);
+    } else {
+        println!(
+            "{:>9} {:>7} {:>8.2} {:>10.2} {:>8} {:>9.2} {:>7.2} {:>9.0} {:>11}",
+            row.particles,
+            if row.backend == "gpu" {
+                "gpu".to_owned()
+            } else {
+                row.threads.to_string()
+            },
+            row.seconds,
+            row.mega_particle_steps_per_s,
+            row.speedup_vs_1_thread
+                .map_or("-".to_owned(), |s| format!("{s:.2}x")),
+            row.contacts_per_particle,
+            row.pairs_per_particle,
+            row.model_bytes_per_particle,
+            row.peak_rss_kib
+                .map_or("-".to_owned(), |k| format!("{:.1}", k as f64 / 1024.0)),
+        );
     }
     Ok(())
 }

@@ -3,6 +3,7 @@
 
 mod analyze;
 mod aor_cmd;
+mod backend;
 mod backup_cmd;
 mod bench_cmd;
 mod client;

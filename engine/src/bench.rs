@@ -14,7 +14,7 @@ use crate::material::{Cohesion, Interaction, MaterialSet};
 use crate::math::{Pose, Vec3};
 use crate::mesh::TriMesh;
 use crate::neighbor::Domain;
-use crate::particles::ParticleSpec;
+use crate::particles::{ParticleSpec, Particles};
 use crate::world::{Geometry, World, WorldConfig, WorldError};
 
 /// What to measure.
@@ -106,14 +106,12 @@ fn bed_world(
     Ok((world, side, layers, spacing))
 }
 
-/// Build a bed of `particles` spheres (radii ±10 % around [`BED_RADIUS`]) at rest on a floor,
-/// periodic in x and y, with soil-like contacts (e 0.3, μs 0.5, μr 0.1, CDT).
-///
-/// Generated quickly: the spheres start on a jittered cubic lattice slightly wider than their
-/// diameter and collapse onto the floor in a strongly damped, low-friction world (e 0.05,
-/// μs 0.1, μr 0), which packs densely (≈ 5 contacts per particle) and comes to rest fast. The
-/// settled positions are then loaded into the measured world, at rest.
-pub fn settled_bed(particles: usize, seed: u64) -> Result<World, WorldError> {
+/// The unsettled bed: `particles` spheres (radii ±10 % around [`BED_RADIUS`]) on a jittered
+/// cubic lattice slightly wider than their diameter, over a floor, periodic in x and y, in the
+/// strongly damped, low-friction settling world (e 0.05, μs 0.1, μr 0) that packs densely
+/// (≈ 5 contacts per particle) and comes to rest fast. Returns the world and the lattice top's
+/// fall time, s, which bounds the settling ([`settle`]). Any engine backend settles it.
+pub fn bed_lattice(particles: usize, seed: u64) -> Result<(World, f64), WorldError> {
     let settling = Interaction {
         restitution: 0.05,
         static_friction: 0.1,
@@ -146,26 +144,42 @@ pub fn settled_bed(particles: usize, seed: u64) -> Result<World, WorldError> {
             }
         }
     }
-    // The lattice's top falls by about a gap per layer; give it that fall time, then settle
-    // until the fastest particle is slow (bounded, so a pathological case still ends).
+    // The lattice's top falls by about a gap per layer.
     let drop = layers as f64 * (spacing - 2.0 * BED_RADIUS);
-    let fall = (2.0 * drop / 9.81).sqrt();
-    world.run_until(2.0 * fall);
+    Ok((world, (2.0 * drop / 9.81).sqrt()))
+}
+
+/// How far [`settle`] asks a backend to advance the settling world.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Advance {
+    /// Step until the world's time reaches this, s.
+    Until(f64),
+    /// This many steps.
+    Steps(u64),
+}
+
+/// The settling schedule of a lattice whose top falls for `fall` seconds: run until twice
+/// that, then in blocks of 100 steps until the fastest particle is slower than
+/// [`SETTLED_SPEED`], at most until ten times the fall (so a pathological case still ends).
+/// `advance` moves the settling world on and returns (its time, its fastest speed).
+pub fn settle(fall: f64, mut advance: impl FnMut(Advance) -> (f64, f64)) {
+    let (mut time, _) = advance(Advance::Until(2.0 * fall));
     let limit = 10.0 * fall;
-    while world.time() < limit {
-        world.run(100);
-        let fastest = world
-            .particles()
-            .velocity
-            .iter()
-            .map(|v| v.norm())
-            .fold(0.0, f64::max);
-        if fastest < 1e-3 {
+    while time < limit {
+        let (t, fastest) = advance(Advance::Steps(100));
+        time = t;
+        if fastest < SETTLED_SPEED {
             break;
         }
     }
+}
+
+/// A bed is settled when its fastest particle is slower than this, m/s.
+pub const SETTLED_SPEED: f64 = 1e-3;
+
+/// The measured bed (e 0.3, μs 0.5, μr 0.1, CDT) holding `settled`'s particles at rest.
+pub fn measured_bed(particles: usize, seed: u64, settled: &Particles) -> Result<World, WorldError> {
     let (mut bed, ..) = bed_world(particles, measured_interaction(), seed)?;
-    let settled = world.particles();
     for k in 0..settled.len() {
         bed.add_particle(ParticleSpec::at_rest(
             settled.position[k],
@@ -174,6 +188,27 @@ pub fn settled_bed(particles: usize, seed: u64) -> Result<World, WorldError> {
         ))?;
     }
     Ok(bed)
+}
+
+/// Build a bed of `particles` spheres (radii ±10 % around [`BED_RADIUS`]) at rest on a floor,
+/// periodic in x and y, with soil-like contacts (e 0.3, μs 0.5, μr 0.1, CDT), settled by this
+/// (CPU) engine: [`bed_lattice`], [`settle`], then [`measured_bed`].
+pub fn settled_bed(particles: usize, seed: u64) -> Result<World, WorldError> {
+    let (mut world, fall) = bed_lattice(particles, seed)?;
+    settle(fall, |advance| {
+        match advance {
+            Advance::Until(time) => world.run_until(time),
+            Advance::Steps(steps) => world.run(steps),
+        }
+        let fastest = world
+            .particles()
+            .velocity
+            .iter()
+            .map(|v| v.norm())
+            .fold(0.0, f64::max);
+        (world.time(), fastest)
+    });
+    measured_bed(particles, seed, world.particles())
 }
 
 /// Build a settled bed, then time `config.steps` steps in a local pool of `threads` threads.

@@ -18,6 +18,7 @@ use crate::aor::{
 use crate::drill::{
     bed_key, build_bed, run_drill_on_bed, DrillError, DrillSpec, DrillStatus, SettledBed,
 };
+use crate::formula::FormulaSpec;
 use crate::progress::Control;
 use crate::replay::{ReplayError, ReplaySpec};
 use crate::shear::{
@@ -92,11 +93,19 @@ pub enum Kind {
     Shear,
     /// The test aid that answers from a table of known results (`table_lookup`).
     TableLookup,
+    /// The test aid that answers with closed forms and seeded noise (`formula`).
+    Formula,
 }
 
 impl Kind {
     /// Every kind, in the order [`KINDS`] names them.
-    pub const ALL: [Kind; 4] = [Kind::Aor, Kind::Drill, Kind::Shear, Kind::TableLookup];
+    pub const ALL: [Kind; 5] = [
+        Kind::Aor,
+        Kind::Drill,
+        Kind::Shear,
+        Kind::TableLookup,
+        Kind::Formula,
+    ];
 
     /// The kind called `name`.
     pub fn parse(name: &str) -> Result<Kind, ExperimentError> {
@@ -113,6 +122,7 @@ impl Kind {
             Kind::Drill => "drill",
             Kind::Shear => "shear",
             Kind::TableLookup => "table_lookup",
+            Kind::Formula => "formula",
         }
     }
 
@@ -123,6 +133,7 @@ impl Kind {
             Kind::Drill => &crate::drill::PRESETS,
             Kind::Shear => &crate::shear::PRESETS,
             Kind::TableLookup => &[],
+            Kind::Formula => &[],
         }
     }
 }
@@ -141,7 +152,7 @@ impl std::fmt::Display for Kind {
 }
 
 /// Names of the kinds understood by [`run_experiment`] (`Kind::ALL`'s names).
-pub const KINDS: [&str; 4] = ["aor", "drill", "shear", "table_lookup"];
+pub const KINDS: [&str; 5] = ["aor", "drill", "shear", "table_lookup", "formula"];
 
 /// A spec parsed and checked for its kind: the typed form every entry point works on (parsed
 /// once, like mini-redis's `Command`), then dispatched by `match`.
@@ -151,6 +162,7 @@ pub enum ExperimentSpec {
     Drill(DrillSpec),
     Shear(ShearSpec),
     TableLookup(ReplaySpec),
+    Formula(FormulaSpec),
 }
 
 impl ExperimentSpec {
@@ -161,6 +173,7 @@ impl ExperimentSpec {
             Kind::Drill => ExperimentSpec::Drill(parse_drill(spec)?),
             Kind::Shear => ExperimentSpec::Shear(parse_shear(spec)?),
             Kind::TableLookup => ExperimentSpec::TableLookup(parse_replay(spec)?),
+            Kind::Formula => ExperimentSpec::Formula(FormulaSpec::from_json(spec)?),
         })
     }
 
@@ -170,6 +183,7 @@ impl ExperimentSpec {
             ExperimentSpec::Drill(_) => Kind::Drill,
             ExperimentSpec::Shear(_) => Kind::Shear,
             ExperimentSpec::TableLookup(_) => Kind::TableLookup,
+            ExperimentSpec::Formula(_) => Kind::Formula,
         }
     }
 
@@ -182,6 +196,7 @@ impl ExperimentSpec {
             ExperimentSpec::TableLookup(s) => {
                 serde_json::to_value(s).expect("ReplaySpec serialises")
             }
+            ExperimentSpec::Formula(s) => serde_json::to_value(s).expect("FormulaSpec serialises"),
         }
     }
 }
@@ -305,7 +320,7 @@ pub fn prepare_spec(
                 .map_err(|_| unknown_preset(kind.presets().join(", ")))?;
             Some(serde_json::to_value(base).expect("ShearSpec serialises"))
         }
-        Kind::TableLookup => {
+        Kind::TableLookup | Kind::Formula => {
             if preset.is_some() {
                 return Err(unknown_preset("(none)".into()));
             }
@@ -361,9 +376,10 @@ pub fn checkpoint_key_of_run(
             spec.seed = seed;
             Ok(Some(checkpoint_key(&spec)))
         }
-        ExperimentSpec::Drill(_) | ExperimentSpec::Shear(_) | ExperimentSpec::TableLookup(_) => {
-            Ok(None)
-        }
+        ExperimentSpec::Drill(_)
+        | ExperimentSpec::Shear(_)
+        | ExperimentSpec::TableLookup(_)
+        | ExperimentSpec::Formula(_) => Ok(None),
     }
 }
 
@@ -597,6 +613,7 @@ pub fn run_experiment_with_stores(
                 hold_s: spec.hold_s,
             })
         }
+        ExperimentSpec::Formula(spec) => crate::formula::run(&spec, seed, progress),
     }
 }
 

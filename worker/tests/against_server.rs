@@ -1,5 +1,6 @@
 //! The worker library against the real server (in-process, 127.0.0.1, ephemeral port, temp
-//! SQLite): the version refusal and the idle exit.
+//! SQLite): the version refusal, the idle exit, and a `formula` batch from submission to its
+//! analysis.
 
 use std::path::Path;
 use std::time::Duration;
@@ -176,5 +177,128 @@ async fn exit_when_idle_stops_the_worker_once_the_queue_stays_empty() {
         waiting.is_err(),
         "a worker without the idle exit keeps waiting"
     );
+    server.stop().await;
+}
+
+/// POSTs `batch` as `user`; the reply's status and JSON body.
+async fn post_batch(url: &str, user: &str, batch: &serde_json::Value) -> (u16, serde_json::Value) {
+    let response = reqwest::Client::new()
+        .post(format!("{url}/v1/batches"))
+        .bearer_auth(user)
+        .json(batch)
+        .send()
+        .await
+        .unwrap();
+    let status = response.status().as_u16();
+    (status, response.json().await.unwrap_or_default())
+}
+
+/// GETs `path` as `user`; the reply's status and JSON body.
+async fn get(url: &str, user: &str, path: &str) -> (u16, serde_json::Value) {
+    let response = reqwest::Client::new()
+        .get(format!("{url}{path}"))
+        .bearer_auth(user)
+        .send()
+        .await
+        .unwrap();
+    let status = response.status().as_u16();
+    (status, response.json().await.unwrap_or_default())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_formula_batch_runs_to_its_analysis_and_a_bad_expression_is_a_422_naming_its_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("repose.sqlite");
+    let token = create_token(&db, "workers", TokenRole::Worker)
+        .await
+        .unwrap();
+    let user = create_token(&db, "someone", TokenRole::User).await.unwrap();
+    let server = Server::start(&db, "127.0.0.1:0", ReleaseVersion::current()).await;
+
+    // y = 3 + 2a - b with a little noise; the corner a = 1, b = 2 is a failure region.
+    let batch = |response: &str| {
+        json!({
+            "name": "known answer",
+            "experiment": {"kind": "formula", "spec": {
+                "inputs": {"a": 0.0, "b": 0.0},
+                "responses": {"y": response},
+                "noise_sd": {"y": 0.01},
+                "fails_when": "a > 0.9 && b > 1.9"}},
+            "factors": [{"name": "a", "path": "inputs.a", "low": 0.0, "high": 1.0},
+                        {"name": "b", "path": "inputs.b", "low": 0.0, "high": 2.0}],
+            "design": {"type": "explicit",
+                       "points": [[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [1.0, 2.0],
+                                  [0.5, 1.0], [0.5, 1.0]]},
+            "response": "y",
+            "model": "linear",
+            "seed": 5
+        })
+    };
+    let (status, body) = post_batch(&server.url, &user, &batch("3 + 2*a - c")).await;
+    assert_eq!(status, 422, "{body}");
+    assert_eq!(body["field"], "experiment.spec.responses.y", "{body}");
+    assert!(body.to_string().contains("unknown variable 'c'"), "{body}");
+    let (status, body) = post_batch(&server.url, &user, &batch("3 + 2*a - b")).await;
+    assert_eq!(status, 201, "{body}");
+    let id = body["id"].as_str().unwrap().to_owned();
+
+    let mut config = worker_config(&server.url, &token);
+    config.exit_when_idle = Some(Duration::from_secs(1));
+    let summary =
+        tokio::time::timeout(Duration::from_secs(60), run(config, std::future::pending()))
+            .await
+            .expect("the idle worker exits by itself")
+            .unwrap();
+    assert_eq!(summary.completed, 5, "{summary:?}");
+    assert_eq!(summary.failed, 1, "{summary:?}");
+
+    let (status, runs) = get(&server.url, &user, &format!("/v1/batches/{id}/runs")).await;
+    assert_eq!(status, 200, "{runs}");
+    for run in runs.as_array().unwrap() {
+        let (a, b) = (
+            run["factors"][0]["natural"].as_f64().unwrap(),
+            run["factors"][1]["natural"].as_f64().unwrap(),
+        );
+        if a == 1.0 && b == 2.0 {
+            // Dead at once: a closed form fails under every seed, so no reseed.
+            assert_eq!(run["status"], "dead", "{run}");
+            assert_eq!(run["attempts"], 1, "{run}");
+            assert!(
+                run["last_error"]
+                    .as_str()
+                    .unwrap()
+                    .contains("fails_when holds"),
+                "{run}"
+            );
+        } else {
+            assert_eq!(run["status"], "completed", "{run}");
+            let y = run["metrics"]["y"].as_f64().unwrap();
+            assert!((y - (3.0 + 2.0 * a - b)).abs() < 0.06, "{run}");
+        }
+    }
+
+    let mut analysis = serde_json::Value::Null;
+    for _ in 0..200 {
+        let (status, body) = get(&server.url, &user, &format!("/v1/batches/{id}/analysis")).await;
+        if status == 200 {
+            analysis = body;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(analysis["runs_used"], 5, "{analysis}");
+    // In coded units: a's half range 0.5 gives 1.0, b's half range 1 gives -1.0.
+    let coefficient = |term: &str| {
+        analysis["fit"]["coefficients"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["term"] == term)
+            .unwrap_or_else(|| panic!("no {term}: {analysis}"))["estimate"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!((coefficient("a") - 1.0).abs() < 0.05, "{analysis}");
+    assert!((coefficient("b") + 1.0).abs() < 0.05, "{analysis}");
     server.stop().await;
 }

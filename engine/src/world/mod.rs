@@ -426,6 +426,11 @@ impl World {
         &self.geometries[id.0 as usize]
     }
 
+    /// Every geometry, in the order they were added (index = [`GeometryId`]).
+    pub fn geometries(&self) -> &[Geometry] {
+        &self.geometries
+    }
+
     /// Replaces the prescribed motion of geometry `id` from now on (servo control: a lid held
     /// at a normal force, a shear box moved at a set speed). The new motion should start at
     /// the pose the geometry has now (`geometry(id).motion.pose_at(time())`, e.g.

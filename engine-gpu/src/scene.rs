@@ -1,0 +1,391 @@
+//! The CPU engine's scene as the GPU holds it: positions as integer voxels plus f32 offsets,
+//! per-particle records packed in vec4s, the static triangles and the material pair table.
+//! Pure data (no device), so the conversion and its precision are tested without a GPU.
+
+use bytemuck::{Pod, Zeroable};
+use repose_engine::contact::RollingModel;
+use repose_engine::integrate::Integrator;
+use repose_engine::material::MaterialId;
+use repose_engine::math::Vec3;
+use repose_engine::world::World;
+
+use crate::GpuError;
+
+/// Neighbours per particle within the skin (the shader's `CAP`).
+pub const NEIGHBOUR_CAPACITY: usize = 32;
+/// Particles per grid cell (the shader's `BIN`).
+pub const BIN_CAPACITY: usize = 16;
+/// Triangle contacts with history per particle (the shader's `WCAP`).
+pub const WALL_CAPACITY: usize = 4;
+/// Threads per workgroup (the shader's `WG`).
+pub const WORKGROUP: u32 = 128;
+
+/// The voxel grid: it places positions (integer voxel + offset) and bins the neighbour search.
+/// Periodic axes hold a whole number of voxels, so wrapping is an integer operation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    pub min: Vec3,
+    pub voxel: Vec3,
+    pub dims: [i32; 3],
+    pub periodic: [bool; 2],
+}
+
+impl Grid {
+    /// A grid over `world`'s domain with voxels at least `min_voxel` wide.
+    pub fn new(world: &World, min_voxel: f64) -> Result<Grid, GpuError> {
+        let domain = world.config().domain;
+        let extent = domain.max - domain.min;
+        let periodic = [domain.periodic_x, domain.periodic_y];
+        let mut dims = [0i32; 3];
+        let mut voxel = Vec3::zeros();
+        for a in 0..3 {
+            let whole = a < 2 && periodic[a];
+            let n = if whole {
+                (extent[a] / min_voxel).floor()
+            } else {
+                (extent[a] / min_voxel).ceil()
+            };
+            if whole && n < 3.0 {
+                return Err(GpuError::Capacity(format!(
+                    "a periodic axis holds {n} neighbour cells; at least 3 are needed \
+                     (domain {:.4} m, cells {min_voxel:.4} m)",
+                    extent[a]
+                )));
+            }
+            if !(1.0..=65_536.0).contains(&n) {
+                return Err(GpuError::Capacity(format!(
+                    "the domain is {n} neighbour cells along axis {a} (at most 65536)"
+                )));
+            }
+            dims[a] = n as i32;
+            voxel[a] = if whole { extent[a] / n } else { min_voxel };
+        }
+        Ok(Grid {
+            min: domain.min,
+            voxel,
+            dims,
+            periodic,
+        })
+    }
+
+    /// Cells in the grid.
+    pub fn cells(&self) -> usize {
+        self.dims.iter().map(|&d| d as usize).product()
+    }
+
+    /// `x` as a voxel and an offset in it (periodic axes wrapped into the grid).
+    pub fn to_voxel(&self, x: Vec3) -> ([i32; 3], [f32; 3]) {
+        self.voxel_of(x, true)
+    }
+
+    /// `x` as a voxel and an offset, not wrapped: geometry stays where it is (a particle
+    /// sees a triangle at its place, not at a periodic image).
+    pub fn to_voxel_unwrapped(&self, x: Vec3) -> ([i32; 3], [f32; 3]) {
+        self.voxel_of(x, false)
+    }
+
+    fn voxel_of(&self, x: Vec3, wrap: bool) -> ([i32; 3], [f32; 3]) {
+        let mut cell = [0i32; 3];
+        let mut offset = [0f32; 3];
+        for a in 0..3 {
+            let u = x[a] - self.min[a];
+            let k = (u / self.voxel[a]).floor();
+            let mut o = (u - k * self.voxel[a]) as f32;
+            // Rounding to f32 may reach the voxel's far face.
+            if o >= self.voxel[a] as f32 {
+                o = (self.voxel[a] as f32).next_down_f32();
+            }
+            let mut k = k as i64;
+            if wrap && a < 2 && self.periodic[a] {
+                k = k.rem_euclid(self.dims[a] as i64);
+            }
+            cell[a] = k as i32;
+            offset[a] = o.max(0.0);
+        }
+        (cell, offset)
+    }
+
+    /// The position of a voxel and offset, m.
+    pub fn to_position(&self, cell: [i32; 3], offset: [f32; 3]) -> Vec3 {
+        Vec3::from_fn(|a, _| self.min[a] + cell[a] as f64 * self.voxel[a] + offset[a] as f64)
+    }
+
+    /// The vector from `b` to `a` as the shader computes it (minimum image across periodic
+    /// faces, integer voxel difference times the voxel plus the offsets' difference, in f32).
+    pub fn difference(&self, a: ([i32; 3], [f32; 3]), b: ([i32; 3], [f32; 3])) -> [f32; 3] {
+        std::array::from_fn(|k| {
+            let mut dc = a.0[k] - b.0[k];
+            if k < 2 && self.periodic[k] {
+                let n = self.dims[k];
+                if dc > n / 2 {
+                    dc -= n;
+                } else if dc < -(n / 2) {
+                    dc += n;
+                }
+            }
+            dc as f32 * self.voxel[k] as f32 + (a.1[k] - b.1[k])
+        })
+    }
+}
+
+/// `next_down` for f32 on the toolchains this crate supports.
+trait NextDown {
+    fn next_down_f32(self) -> f32;
+}
+
+impl NextDown for f32 {
+    fn next_down_f32(self) -> f32 {
+        if self > 0.0 {
+            f32::from_bits(self.to_bits() - 1)
+        } else {
+            self
+        }
+    }
+}
+
+/// The shader's uniform block.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub(crate) struct Params {
+    pub n: u32,
+    pub ncells: u32,
+    pub nmat: u32,
+    pub ntris: u32,
+    pub dims: [i32; 4],
+    pub voxel: [f32; 4],
+    pub gravity: [f32; 4],
+    pub misc: [f32; 4],
+    pub misc2: [f32; 4],
+}
+
+/// One material pair's contact constants.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub(crate) struct PairC {
+    pub a: [f32; 4],
+    pub b: [f32; 4],
+}
+
+/// One static triangle: first corner as voxel + offset, two edges, the face normal.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub(crate) struct Tri {
+    pub cell: [i32; 4],
+    pub v0: [f32; 4],
+    pub e1: [f32; 4],
+    pub e2: [f32; 4],
+    pub normal: [f32; 4],
+}
+
+/// Everything uploaded at the start of a run.
+#[derive(Debug, Clone)]
+pub(crate) struct Scene {
+    pub grid: Grid,
+    pub integrator: Integrator,
+    pub params: Params,
+    pub cell: Vec<[i32; 4]>,
+    pub off: Vec<[f32; 4]>,
+    pub vel: Vec<[f32; 4]>,
+    pub omg: Vec<[f32; 4]>,
+    pub tris: Vec<Tri>,
+    pub pairs: Vec<PairC>,
+    pub radius: Vec<f64>,
+}
+
+fn v4(v: Vec3, w: f32) -> [f32; 4] {
+    [v.x as f32, v.y as f32, v.z as f32, w]
+}
+
+impl Scene {
+    /// The GPU form of `world` now. Refuses what this backend does not simulate yet
+    /// (cohesion, EPSD rolling, particle sources, moving geometries), naming it.
+    pub fn from_world(world: &World) -> Result<Scene, GpuError> {
+        let config = world.config();
+        let materials = world.materials();
+        if materials.any_cohesion() {
+            return Err(GpuError::Unsupported("cohesion".into()));
+        }
+        if config.rolling_model != RollingModel::ConstantDirectionalTorque {
+            return Err(GpuError::Unsupported(
+                "the elastic-plastic spring-dashpot (EPSD) rolling model".into(),
+            ));
+        }
+        if world.sources().next().is_some() {
+            return Err(GpuError::Unsupported("particle factories (sources)".into()));
+        }
+        if let Some(g) = world
+            .geometries()
+            .iter()
+            .find(|g| !g.motion.is_stationary())
+        {
+            return Err(GpuError::Unsupported(format!(
+                "moving geometries ({:?} moves)",
+                g.name
+            )));
+        }
+        let p = world.particles();
+        let n = p.len();
+        if n == 0 {
+            return Err(GpuError::Capacity("the world has no particles".into()));
+        }
+        let max_radius = p.radius.iter().copied().fold(0.0, f64::max);
+        let min_radius = p.radius.iter().copied().fold(f64::INFINITY, f64::min);
+        // One fixed skin (the CPU engine adapts its own per particle): half the CPU's widest,
+        // so a settled bed lists few pairs and a pour at ~1 m/s rebuilds every ~10 steps.
+        let skin = config.skin_fraction_max * max_radius;
+        let grid = Grid::new(world, 2.0 * max_radius + skin)?;
+        let nmat = materials.len();
+        let mut pairs = Vec::with_capacity(nmat * nmat);
+        for a in 0..nmat {
+            for b in 0..nmat {
+                let c = materials.pair(MaterialId(a as u16), MaterialId(b as u16));
+                pairs.push(PairC {
+                    a: [
+                        c.e_star as f32,
+                        c.g_star as f32,
+                        c.beta as f32,
+                        c.tangential_to_normal_damping as f32,
+                    ],
+                    b: [
+                        c.static_friction as f32,
+                        c.rolling_friction as f32,
+                        0.0,
+                        0.0,
+                    ],
+                });
+            }
+        }
+        let mut tris = Vec::new();
+        for g in world.geometries() {
+            let pose = g.motion.pose_at(world.time());
+            for (t, normal) in g.mesh.normals().iter().enumerate() {
+                let [a, b, c] = g
+                    .mesh
+                    .corners(t)
+                    .map(|v| pose.transform_point(&v.into()).coords);
+                let (cell, v0) = grid.to_voxel_unwrapped(a);
+                tris.push(Tri {
+                    cell: [cell[0], cell[1], cell[2], g.material.0 as i32],
+                    v0: [v0[0], v0[1], v0[2], 0.0],
+                    e1: v4(b - a, 0.0),
+                    e2: v4(c - a, 0.0),
+                    normal: v4(pose.rotation * normal, 0.0),
+                });
+            }
+        }
+        let mut cell = Vec::with_capacity(n);
+        let mut off = Vec::with_capacity(n);
+        for k in 0..n {
+            let (c, o) = grid.to_voxel(p.position[k]);
+            cell.push([c[0], c[1], c[2], p.material[k].0 as i32]);
+            off.push([o[0], o[1], o[2], p.radius[k] as f32]);
+        }
+        let vel = (0..n)
+            .map(|k| v4(p.velocity[k], p.mass[k] as f32))
+            .collect();
+        let omg = (0..n)
+            .map(|k| v4(p.angular_velocity[k], p.inverse_inertia[k] as f32))
+            .collect();
+        let dt = config.time_step;
+        let smooth_cos = repose_engine::mesh::DEFAULT_SMOOTH_ANGLE_DEG
+            .to_radians()
+            .cos();
+        let params = Params {
+            n: n as u32,
+            ncells: grid.cells() as u32,
+            nmat: nmat as u32,
+            ntris: tris.len() as u32,
+            dims: [
+                grid.dims[0],
+                grid.dims[1],
+                grid.dims[2],
+                grid.periodic[0] as i32 | (grid.periodic[1] as i32) << 1,
+            ],
+            voxel: v4(grid.voxel, 0.0),
+            gravity: v4(config.gravity, dt as f32),
+            misc: [dt as f32, 0.5 * skin as f32, skin as f32, smooth_cos as f32],
+            misc2: [1e-3 * min_radius as f32, 1.0, 0.0, 0.0],
+        };
+        Ok(Scene {
+            grid,
+            integrator: config.integrator,
+            params,
+            cell,
+            off,
+            vel,
+            omg,
+            tris,
+            pairs,
+            radius: p.radius.clone(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use repose_engine::material::{Interaction, MaterialSet};
+    use repose_engine::neighbor::Domain;
+    use repose_engine::world::WorldConfig;
+
+    fn grid(periodic: bool) -> Grid {
+        let materials = MaterialSet::paper(
+            Interaction::new(0.5, 0.5, 0.1),
+            Interaction::new(0.5, 0.5, 0.1),
+        )
+        .build()
+        .unwrap();
+        let mut domain = Domain::closed(Vec3::zeros(), Vec3::repeat(0.3));
+        domain.periodic_x = periodic;
+        domain.periodic_y = periodic;
+        let world = World::new(materials, WorldConfig::new(1e-6, domain)).unwrap();
+        Grid::new(&world, 2.75e-3).unwrap()
+    }
+
+    #[test]
+    fn an_overlap_of_a_thousandth_of_a_radius_is_resolved_anywhere_in_a_03_m_domain() {
+        let r = 1.0e-3;
+        let overlap = 1e-3 * r;
+        for periodic in [false, true] {
+            let g = grid(periodic);
+            for corner in [0.001, 0.15, 0.2987] {
+                for axis in 0..3 {
+                    let a = Vec3::repeat(corner);
+                    let mut b = a;
+                    b[axis] += 2.0 * r - overlap;
+                    let d = g.difference(g.to_voxel(b), g.to_voxel(a));
+                    let dist = (d[0] as f64).hypot(d[1] as f64).hypot(d[2] as f64);
+                    let error = ((2.0 * r - dist) - overlap).abs();
+                    // Plain f32 positions near 0.3 m are spaced 3e-8 m: 3 % of this overlap.
+                    assert!(
+                        error < 1e-3 * overlap,
+                        "at {corner} m along {axis}: overlap error {error:e} m"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn positions_round_trip_through_voxels_to_the_offsets_resolution() {
+        let g = grid(false);
+        for x in [0.0, 1e-9, 0.123_456_789, 0.299_999] {
+            let p = Vec3::new(x, 0.3 - x, x / 2.0);
+            let (c, o) = g.to_voxel(p);
+            let back = g.to_position(c, o);
+            assert!((back - p).norm() < 1e-9, "{p:?} -> {back:?}");
+            assert!(o.iter().zip(g.voxel.iter()).all(|(&o, &v)| o >= 0.0 && (o as f64) < v));
+        }
+    }
+
+    #[test]
+    fn periodic_axes_wrap_positions_and_take_the_minimum_image() {
+        let g = grid(true);
+        let (c, _) = g.to_voxel(Vec3::new(-0.001, 0.301, 0.1));
+        assert!(c[0] == g.dims[0] - 1 && c[1] == 0, "{c:?}");
+        let a = g.to_voxel(Vec3::new(0.0005, 0.1, 0.1));
+        let b = g.to_voxel(Vec3::new(0.2995, 0.1, 0.1));
+        let d = g.difference(a, b);
+        assert!((d[0] as f64 - 0.001).abs() < 1e-9, "{d:?}");
+    }
+}

@@ -1,0 +1,688 @@
+// repose's DEM step on the GPU: Hertz-Mindlin no-slip with tangential history and the Coulomb
+// cap, constant-directional-torque rolling friction applied as a brake on the new spin, against
+// other particles and static triangles; symplectic Euler or velocity Verlet.
+//
+// Positions are integer voxel indices plus f32 offsets inside the voxel (`cell`, `off`): the
+// vector between two nearby particles is (integer difference) * voxel + (offset difference),
+// exact to the offsets' resolution (~1e-10 m for mm voxels) anywhere in the domain.
+//
+// Determinism: no float atomics. Integer atomics fill the cell bins in any order, but every
+// particle's neighbour list is sorted by index before use, each pair's force is computed in
+// one canonical orientation (lower index first) by both of its particles, and every particle
+// sums its own contacts in list order, then its triangles in mesh order.
+
+const CAP: u32 = 32u;      // neighbours per particle (within the skin)
+const BIN: u32 = 16u;      // particles per grid cell
+const WCAP: u32 = 4u;      // triangle contacts (with history) per particle
+const WCAND: u32 = 8u;     // triangle contact candidates before merging
+const WG: u32 = 128u;
+const DAMPING_FACTOR: f32 = 1.8257418583505538;
+
+struct Params {
+    n: u32,
+    ncells: u32,
+    nmat: u32,
+    ntris: u32,
+    // nx, ny, nz, periodic bits (1: x, 2: y)
+    dims: vec4<i32>,
+    // voxel edge per axis, m (w unused)
+    csize: vec4<f32>,
+    // gravity (xyz), time step (w)
+    gravity: vec4<f32>,
+    // spring time step, half skin, skin, cos of the distinct angle
+    misc: vec4<f32>,
+    // duplicate-point tolerance of the triangle contacts, m; rolling brake on (1) or off (0)
+    misc2: vec4<f32>,
+}
+
+struct PairC {
+    // E*, G*, beta, sqrt(4 G*/E*)
+    a: vec4<f32>,
+    // mu_s, mu_r, 0, 0
+    b: vec4<f32>,
+}
+
+struct Tri {
+    // the first corner's voxel (xyz) and the triangle's material (w)
+    cell: vec4<i32>,
+    // the first corner's offset in its voxel
+    v0: vec4<f32>,
+    e1: vec4<f32>,
+    e2: vec4<f32>,
+    normal: vec4<f32>,
+}
+
+@group(0) @binding(0) var<storage, read_write> cell: array<vec4<i32>>;
+@group(0) @binding(1) var<storage, read_write> off: array<vec4<f32>>;    // w: radius
+@group(0) @binding(2) var<storage, read_write> vel: array<vec4<f32>>;    // w: mass
+@group(0) @binding(3) var<storage, read_write> omg: array<vec4<f32>>;    // w: 1 / inertia
+@group(0) @binding(4) var<storage, read_write> frc: array<vec4<f32>>;    // w: CDT moment
+@group(0) @binding(5) var<storage, read_write> trq: array<vec4<f32>>;    // w: contacts
+@group(0) @binding(6) var<storage, read_write> disp: array<vec4<f32>>;   // since the build
+@group(0) @binding(7) var<storage, read_write> nbr: array<u32>;
+@group(0) @binding(8) var<storage, read_write> nbn: array<u32>;
+@group(0) @binding(9) var<storage, read_write> spr: array<vec4<f32>>;
+@group(0) @binding(10) var<storage, read_write> nbr2: array<u32>;
+@group(0) @binding(11) var<storage, read_write> nbn2: array<u32>;
+@group(0) @binding(12) var<storage, read_write> spr2: array<vec4<f32>>;
+@group(0) @binding(13) var<storage, read_write> bins: array<u32>;
+@group(0) @binding(14) var<storage, read_write> binn: array<atomic<u32>>;
+@group(0) @binding(15) var<storage, read_write> walls: array<vec4<f32>>;
+@group(0) @binding(16) var<storage, read_write> tris: array<Tri>;
+@group(0) @binding(17) var<storage, read_write> pc: array<PairC>;
+// 0 rebuild wanted, 1 rebuilds, 2 neighbour overflow, 3 bin overflow, 4 removed,
+// 5 fastest speed (f32 bits, max), 6 triangle contact overflow
+@group(0) @binding(18) var<storage, read_write> ctl: array<atomic<u32>>;
+@group(1) @binding(0) var<uniform> P: Params;
+
+// Only the arming kernel writes the indirect arguments (their own bind group: a buffer may
+// not be storage and indirect in one dispatch).
+@group(2) @binding(0) var<storage, read_write> ind: array<u32>;
+
+fn alive(i: u32) -> bool {
+    return cell[i].w >= 0;
+}
+
+fn wrap_axis(d: i32, n: i32, periodic: bool) -> i32 {
+    if (!periodic) {
+        return d;
+    }
+    var r = d;
+    if (r > n / 2) {
+        r -= n;
+    } else if (r < -(n / 2)) {
+        r += n;
+    }
+    return r;
+}
+
+// Minimum image of a voxel difference across the periodic faces.
+fn min_image(dc: vec3<i32>) -> vec3<i32> {
+    return vec3<i32>(
+        wrap_axis(dc.x, P.dims.x, (P.dims.w & 1) != 0),
+        wrap_axis(dc.y, P.dims.y, (P.dims.w & 2) != 0),
+        dc.z,
+    );
+}
+
+// The vector from particle j's centre to particle i's.
+fn rel(i: u32, j: u32) -> vec3<f32> {
+    let dc = min_image(cell[i].xyz - cell[j].xyz);
+    return vec3<f32>(dc) * P.csize.xyz + (off[i].xyz - off[j].xyz);
+}
+
+fn cell_index(c: vec3<i32>) -> u32 {
+    let cc = clamp(c, vec3<i32>(0), P.dims.xyz - vec3<i32>(1));
+    return u32(cc.x + P.dims.x * (cc.y + P.dims.y * cc.z));
+}
+
+fn pair_constants(a: i32, b: i32) -> PairC {
+    return pc[u32(a) * P.nmat + u32(b)];
+}
+
+fn rotate_into_tangent_plane(s: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let old_len2 = dot(s, s);
+    let along = dot(n, s);
+    let projected = s - n * along;
+    if (along * along <= 1e-12 * old_len2) {
+        return projected;
+    }
+    let new_len2 = dot(projected, projected);
+    if (new_len2 > 0.0) {
+        return projected * sqrt(old_len2 / new_len2);
+    }
+    return vec3<f32>(0.0);
+}
+
+struct Hertz {
+    force: vec3<f32>,
+    normal_force: f32,
+    spring: vec3<f32>,
+}
+
+fn hertz_mindlin(c: PairC, r_star: f32, m_star: f32, overlap: f32, n: vec3<f32>,
+                 vrel: vec3<f32>, spring_in: vec3<f32>) -> Hertz {
+    let srd = sqrt(r_star * overlap);
+    let sn = 2.0 * c.a.x * srd;
+    let st = 8.0 * c.a.y * srd;
+    let normal_dashpot = -DAMPING_FACTOR * c.a.z * sqrt(sn * m_star);
+    let tangential_dashpot = normal_dashpot * c.a.w;
+    let vn = dot(vrel, n);
+    let fn_elastic = (2.0 / 3.0) * sn * overlap;
+    let fn_damping = -normal_dashpot * vn;
+    let normal_force = max(fn_elastic + fn_damping, 0.0);
+    let vt = vrel - n * vn;
+    var s = rotate_into_tangent_plane(spring_in, n) + vt * P.misc.x;
+    var ft = -s * st - vt * tangential_dashpot;
+    let cap = c.b.x * normal_force;
+    let ft2 = dot(ft, ft);
+    if (ft2 > cap * cap) {
+        if (ft2 > 0.0) {
+            ft = ft * (cap / sqrt(ft2));
+        }
+        if (st > 0.0) {
+            s = ft * (-1.0 / st);
+        } else {
+            s = vec3<f32>(0.0);
+        }
+    }
+    var h: Hertz;
+    h.force = n * normal_force + ft;
+    h.normal_force = normal_force;
+    h.spring = s;
+    return h;
+}
+
+struct PairOut {
+    touching: bool,
+    // force on a (b gets minus it)
+    force: vec3<f32>,
+    torque_a: vec3<f32>,
+    torque_b: vec3<f32>,
+    moment_a: f32,
+    moment_b: f32,
+    spring: vec3<f32>,
+}
+
+// The contact of a and b (a < b), from a's side: both particles call it with the same
+// arguments, so both get the same bits.
+fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>) -> PairOut {
+    var o: PairOut;
+    o.touching = false;
+    o.force = vec3<f32>(0.0);
+    o.torque_a = vec3<f32>(0.0);
+    o.torque_b = vec3<f32>(0.0);
+    o.moment_a = 0.0;
+    o.moment_b = 0.0;
+    o.spring = vec3<f32>(0.0);
+    let d = rel(a, b);
+    let ra = off[a].w;
+    let rb = off[b].w;
+    let rsum = ra + rb;
+    let dist2 = dot(d, d);
+    if (dist2 >= rsum * rsum) {
+        return o;
+    }
+    o.touching = true;
+    let dist = sqrt(dist2);
+    let n = d * (1.0 / dist);
+    let overlap = rsum - dist;
+    let lever_a = ra - 0.5 * overlap;
+    let lever_b = rb - 0.5 * overlap;
+    let va = vel[a];
+    let vb = vel[b];
+    let wa = omg[a].xyz;
+    let wb = omg[b].xyz;
+    let vrel = va.xyz - vb.xyz - cross(wa * lever_a + wb * lever_b, n);
+    let r_star = ra * rb / rsum;
+    let m_star = va.w * vb.w / (va.w + vb.w);
+    let c = pair_constants(cell[a].w, cell[b].w);
+    let h = hertz_mindlin(c, r_star, m_star, overlap, n, vrel, spring_in);
+    let n_cross_f = cross(n, h.force);
+    o.force = h.force;
+    o.torque_a = -n_cross_f * lever_a;
+    o.torque_b = -n_cross_f * lever_b;
+    let m = c.b.y * h.normal_force;
+    o.moment_a = m * lever_a;
+    o.moment_b = m * lever_b;
+    o.spring = h.spring;
+    return o;
+}
+
+// ---- neighbour rebuild (dispatched indirectly: zero groups when no rebuild is wanted) ----
+
+@compute @workgroup_size(WG)
+fn clear_bins(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let c = gid.x;
+    if (c >= P.ncells) {
+        return;
+    }
+    atomicStore(&binn[c], 0u);
+}
+
+@compute @workgroup_size(WG)
+fn bin(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n || !alive(i)) {
+        return;
+    }
+    let c = cell_index(cell[i].xyz);
+    let slot = atomicAdd(&binn[c], 1u);
+    if (slot < BIN) {
+        bins[c * BIN + slot] = i;
+    } else {
+        atomicAdd(&ctl[3], 1u);
+    }
+}
+
+@compute @workgroup_size(WG)
+fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n) {
+        return;
+    }
+    disp[i] = vec4<f32>(0.0);
+    var list: array<u32, CAP>;
+    var count = 0u;
+    if (alive(i)) {
+        let ci = cell[i].xyz;
+        let ri = off[i].w;
+        let skin = P.misc.z;
+        for (var dz = -1; dz <= 1; dz++) {
+            let z = ci.z + dz;
+            if (z < 0 || z >= P.dims.z) {
+                continue;
+            }
+            for (var dy = -1; dy <= 1; dy++) {
+                var y = ci.y + dy;
+                if ((P.dims.w & 2) != 0) {
+                    y = (y + P.dims.y) % P.dims.y;
+                } else if (y < 0 || y >= P.dims.y) {
+                    continue;
+                }
+                for (var dx = -1; dx <= 1; dx++) {
+                    var x = ci.x + dx;
+                    if ((P.dims.w & 1) != 0) {
+                        x = (x + P.dims.x) % P.dims.x;
+                    } else if (x < 0 || x >= P.dims.x) {
+                        continue;
+                    }
+                    let c = u32(x + P.dims.x * (y + P.dims.y * z));
+                    let m = min(atomicLoad(&binn[c]), BIN);
+                    for (var s = 0u; s < m; s++) {
+                        let j = bins[c * BIN + s];
+                        if (j == i) {
+                            continue;
+                        }
+                        let d = rel(i, j);
+                        let reach = ri + off[j].w + skin;
+                        if (dot(d, d) < reach * reach) {
+                            if (count < CAP) {
+                                list[count] = j;
+                                count++;
+                            } else {
+                                atomicAdd(&ctl[2], 1u);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Sort by index: the gather order does not depend on the bins' fill order.
+    for (var a = 1u; a < count; a++) {
+        let v = list[a];
+        var b = a;
+        while (b > 0u && list[b - 1u] > v) {
+            list[b] = list[b - 1u];
+            b--;
+        }
+        list[b] = v;
+    }
+    // Carry the springs of pairs that were already listed (both lists are sorted).
+    let old_count = nbn[i];
+    var k = 0u;
+    let base = i * CAP;
+    for (var a = 0u; a < count; a++) {
+        let j = list[a];
+        while (k < old_count && nbr[base + k] < j) {
+            k++;
+        }
+        var s = vec4<f32>(0.0);
+        if (k < old_count && nbr[base + k] == j) {
+            s = spr[base + k];
+        }
+        nbr2[base + a] = j;
+        spr2[base + a] = s;
+    }
+    nbn2[i] = count;
+}
+
+@compute @workgroup_size(WG)
+fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n) {
+        return;
+    }
+    let count = nbn2[i];
+    nbn[i] = count;
+    let base = i * CAP;
+    for (var a = 0u; a < count; a++) {
+        nbr[base + a] = nbr2[base + a];
+        spr[base + a] = spr2[base + a];
+    }
+}
+
+@compute @workgroup_size(1)
+fn arm() {
+    let wanted = atomicExchange(&ctl[0], 0u);
+    if (wanted != 0u) {
+        atomicAdd(&ctl[1], 1u);
+        ind[0] = (P.n + WG - 1u) / WG;
+        ind[3] = (P.ncells + WG - 1u) / WG;
+    } else {
+        ind[0] = 0u;
+        ind[3] = 0u;
+    }
+    ind[1] = 1u;
+    ind[2] = 1u;
+    ind[4] = 1u;
+    ind[5] = 1u;
+}
+
+// ---- forces ----
+
+struct TriContact {
+    point: vec3<f32>,   // relative to the particle's centre (the lever arm)
+    normal: vec3<f32>,  // from the surface towards the centre
+    overlap: f32,
+    material: i32,
+}
+
+// The closest point of triangle t to p (p relative to the first corner), relative to the
+// first corner (Ericson, Real-Time Collision Detection 5.1.5).
+fn closest_on_triangle(p: vec3<f32>, ab: vec3<f32>, ac: vec3<f32>) -> vec3<f32> {
+    let ap = p;
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if (d1 <= 0.0 && d2 <= 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let bp = p - ab;
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if (d3 >= 0.0 && d4 <= d3) {
+        return ab;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
+        return ab * (d1 / (d1 - d3));
+    }
+    let cp = p - ac;
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if (d6 >= 0.0 && d5 <= d6) {
+        return ac;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
+        return ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
+        return ab + (ac - ab) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    return ab * (vb * denom) + ac * (vc * denom);
+}
+
+@compute @workgroup_size(WG)
+fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n) {
+        return;
+    }
+    if (!alive(i)) {
+        frc[i] = vec4<f32>(0.0);
+        trq[i] = vec4<f32>(0.0);
+        return;
+    }
+    let vi = vel[i];
+    let mi = vi.w;
+    let ri = off[i].w;
+    var f = P.gravity.xyz * mi;
+    var tq = vec3<f32>(0.0);
+    var moment = 0.0;
+    var touching = 0.0;
+    let base = i * CAP;
+    let count = nbn[i];
+    for (var k = 0u; k < count; k++) {
+        let j = nbr[base + k];
+        if (!alive(j)) {
+            spr[base + k] = vec4<f32>(0.0);
+            continue;
+        }
+        let s = spr[base + k].xyz;
+        if (i < j) {
+            let o = pair_contact(i, j, s);
+            if (o.touching) {
+                f += o.force;
+                tq += o.torque_a;
+                moment += o.moment_a;
+                touching += 1.0;
+            }
+            spr[base + k] = vec4<f32>(o.spring, 0.0);
+        } else {
+            let o = pair_contact(j, i, s);
+            if (o.touching) {
+                f -= o.force;
+                tq += o.torque_b;
+                moment += o.moment_b;
+                touching += 1.0;
+            }
+            spr[base + k] = vec4<f32>(o.spring, 0.0);
+        }
+    }
+
+    // Triangles, in mesh order; a point found twice (a shared edge or corner) counts once,
+    // and of contacts whose normals are within the distinct angle the deepest is kept.
+    var cand: array<TriContact, WCAND>;
+    var nc = 0u;
+    let ci = cell[i].xyz;
+    let oi = off[i].xyz;
+    let tol = P.misc2.x;
+    for (var t = 0u; t < P.ntris; t++) {
+        let tri = tris[t];
+        let p = vec3<f32>(ci - tri.cell.xyz) * P.csize.xyz + (oi - tri.v0.xyz);
+        let q = closest_on_triangle(p, tri.e1.xyz, tri.e2.xyz);
+        let d = p - q;
+        let dist2 = dot(d, d);
+        if (!(dist2 < ri * ri)) {
+            continue;
+        }
+        var duplicate = false;
+        for (var c = 0u; c < nc; c++) {
+            let e = (cand[c].point + p) - q;
+            if (dot(e, e) <= tol * tol) {
+                duplicate = true;
+            }
+        }
+        if (duplicate) {
+            continue;
+        }
+        if (nc == WCAND) {
+            atomicAdd(&ctl[6], 1u);
+            continue;
+        }
+        let dist = sqrt(dist2);
+        var n = tri.normal.xyz;
+        if (dot(n, d) < 0.0) {
+            n = -n;
+        }
+        if (dist > 1e-6 * ri) {
+            // At an edge or a corner the direction to the centre is the normal (on the face
+            // both agree).
+            let to_centre = d * (1.0 / dist);
+            if (dot(to_centre, n) < 0.9999) {
+                n = to_centre;
+            }
+        }
+        var tc: TriContact;
+        tc.point = q - p;
+        tc.normal = n;
+        tc.overlap = ri - dist;
+        tc.material = tri.cell.w;
+        cand[nc] = tc;
+        nc++;
+    }
+    // Deepest first (ties by point), then drop those within the distinct angle of a kept one.
+    for (var a = 1u; a < nc; a++) {
+        let v = cand[a];
+        var b = a;
+        while (b > 0u && (cand[b - 1u].overlap < v.overlap
+                || (cand[b - 1u].overlap == v.overlap && cand[b - 1u].point.x > v.point.x))) {
+            cand[b] = cand[b - 1u];
+            b--;
+        }
+        cand[b] = v;
+    }
+    var kept = 0u;
+    for (var a = 0u; a < nc; a++) {
+        var distinct = true;
+        for (var b = 0u; b < kept; b++) {
+            if (dot(cand[b].normal, cand[a].normal) > P.misc.w) {
+                distinct = false;
+            }
+        }
+        if (distinct && kept < WCAP) {
+            cand[kept] = cand[a];
+            kept++;
+        }
+    }
+    // Each contact takes the spring of the previous contact whose normal is closest (> 0.9).
+    let wbase = i * WCAP * 2u;
+    var old_n: array<vec4<f32>, WCAP>;
+    var old_s: array<vec4<f32>, WCAP>;
+    for (var h = 0u; h < WCAP; h++) {
+        old_n[h] = walls[wbase + 2u * h];
+        old_s[h] = walls[wbase + 2u * h + 1u];
+    }
+    let wi = omg[i].xyz;
+    for (var a = 0u; a < WCAP; a++) {
+        if (a >= kept) {
+            walls[wbase + 2u * a] = vec4<f32>(0.0);
+            walls[wbase + 2u * a + 1u] = vec4<f32>(0.0);
+            continue;
+        }
+        let tc = cand[a];
+        var best = 0.9;
+        var spring = vec3<f32>(0.0);
+        for (var h = 0u; h < WCAP; h++) {
+            if (old_n[h].w > 0.0) {
+                let dn = dot(old_n[h].xyz, tc.normal);
+                if (dn > best) {
+                    best = dn;
+                    spring = old_s[h].xyz;
+                }
+            }
+        }
+        let arm = tc.point;
+        let vrel = vi.xyz + cross(wi, arm);
+        let c = pair_constants(cell[i].w, tc.material);
+        let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, spring);
+        f += h.force;
+        tq += cross(arm, h.force);
+        moment += c.b.y * h.normal_force * length(arm);
+        walls[wbase + 2u * a] = vec4<f32>(tc.normal, 1.0);
+        walls[wbase + 2u * a + 1u] = vec4<f32>(h.spring, 0.0);
+    }
+    frc[i] = vec4<f32>(f, moment);
+    trq[i] = vec4<f32>(tq, touching);
+}
+
+// ---- integration ----
+
+// The spin after a kick of h seconds, CDT's rolling moment braking it with a whole step's
+// impulse, never reversing it.
+fn kick_spin(w: vec3<f32>, torque: vec3<f32>, moment: f32, inv_i: f32, h: f32) -> vec3<f32> {
+    let spin = w + torque * (h * inv_i);
+    if (P.misc2.y > 0.0 && moment > 0.0) {
+        let limit = moment * P.gravity.w * inv_i;
+        let speed2 = dot(spin, spin);
+        if (speed2 <= limit * limit) {
+            return vec3<f32>(0.0);
+        }
+        return spin * (1.0 - limit / sqrt(speed2));
+    }
+    return spin;
+}
+
+// Moves particle i by dx: the offset stays inside its voxel, periodic voxels wrap, a particle
+// leaving the domain is removed. Wants a rebuild when it moved half a skin since the last.
+fn drift(i: u32, dx: vec3<f32>) {
+    var o = off[i].xyz + dx;
+    var c = cell[i].xyz;
+    let k = floor(o / P.csize.xyz);
+    o = o - k * P.csize.xyz;
+    // Rounding can leave an offset a hair outside [0, voxel).
+    o = clamp(o, vec3<f32>(0.0), P.csize.xyz * 0.99999994);
+    c = c + vec3<i32>(k);
+    if ((P.dims.w & 1) != 0) {
+        c.x = ((c.x % P.dims.x) + P.dims.x) % P.dims.x;
+    }
+    if ((P.dims.w & 2) != 0) {
+        c.y = ((c.y % P.dims.y) + P.dims.y) % P.dims.y;
+    }
+    var m = cell[i].w;
+    if (any(c < vec3<i32>(0)) || any(c >= P.dims.xyz)) {
+        m = -1;
+        atomicAdd(&ctl[4], 1u);
+        atomicStore(&ctl[0], 1u);
+    }
+    cell[i] = vec4<i32>(c, m);
+    off[i] = vec4<f32>(o, off[i].w);
+    let moved = disp[i].xyz + dx;
+    disp[i] = vec4<f32>(moved, 0.0);
+    if (dot(moved, moved) > P.misc.y * P.misc.y) {
+        atomicStore(&ctl[0], 1u);
+    }
+}
+
+// Symplectic Euler: v += F dt / m, spin, x += v dt.
+@compute @workgroup_size(WG)
+fn euler(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n || !alive(i)) {
+        return;
+    }
+    let dt = P.gravity.w;
+    let f = frc[i];
+    let v = vel[i];
+    let nv = v.xyz + f.xyz * (dt / v.w);
+    vel[i] = vec4<f32>(nv, v.w);
+    let w = omg[i];
+    omg[i] = vec4<f32>(kick_spin(w.xyz, trq[i].xyz, f.w, w.w, dt), w.w);
+    drift(i, nv * dt);
+}
+
+// Velocity Verlet, first half: v += a dt/2, w += alpha dt/2, x += v dt.
+@compute @workgroup_size(WG)
+fn kick_drift(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n || !alive(i)) {
+        return;
+    }
+    let dt = P.gravity.w;
+    let f = frc[i];
+    let v = vel[i];
+    let nv = v.xyz + f.xyz * (0.5 * dt / v.w);
+    vel[i] = vec4<f32>(nv, v.w);
+    let w = omg[i];
+    omg[i] = vec4<f32>(w.xyz + trq[i].xyz * (0.5 * dt * w.w), w.w);
+    drift(i, nv * dt);
+}
+
+// Velocity Verlet, second half: v += a dt/2, spin with the rolling brake.
+@compute @workgroup_size(WG)
+fn half_kick(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n || !alive(i)) {
+        return;
+    }
+    let dt = P.gravity.w;
+    let f = frc[i];
+    let v = vel[i];
+    vel[i] = vec4<f32>(v.xyz + f.xyz * (0.5 * dt / v.w), v.w);
+    let w = omg[i];
+    omg[i] = vec4<f32>(kick_spin(w.xyz, trq[i].xyz, f.w, w.w, 0.5 * dt), w.w);
+}
+
+// The fastest particle's speed, as the bits of a non-negative f32 (ordered like the value).
+@compute @workgroup_size(WG)
+fn fastest(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= P.n || !alive(i)) {
+        return;
+    }
+    atomicMax(&ctl[5], bitcast<u32>(length(vel[i].xyz)));
+}

@@ -1,0 +1,362 @@
+//! The CPU engine's analytic checks on the GPU backend: Hertz force against overlap (anywhere
+//! in a 0.3 m domain), restitution of normal impacts (sphere-sphere, sphere-plane), a sphere
+//! on a triangle's face, edge and corner, sliding to rolling at 5/7 of the launch speed, CDT
+//! rolling deceleration. f32 state: each test states its tolerance.
+
+mod common;
+
+use repose_engine::contact::RollingModel;
+use repose_engine::integrate::Integrator;
+use repose_engine::kinematics::Motion;
+use repose_engine::material::{
+    hertz_contact_time, Cohesion, DampingLaw, Interaction, InteractionEntry, Material, MaterialId,
+    MaterialSet, MaterialTable,
+};
+use repose_engine::math::{Pose, Vec3};
+use repose_engine::mesh::TriMesh;
+use repose_engine::neighbor::Domain;
+use repose_engine::particles::ParticleSpec;
+use repose_engine::world::{Geometry, World, WorldConfig};
+use repose_engine_gpu::{Gpu, GpuWorld};
+
+const BALL: MaterialId = MaterialId(0);
+const WALL: MaterialId = MaterialId(1);
+
+fn ball_material() -> Material {
+    Material {
+        name: "ball".into(),
+        density: 2500.0,
+        youngs_modulus: 1.0e8,
+        poisson: 0.3,
+    }
+}
+
+fn wall_material() -> Material {
+    Material {
+        name: "wall".into(),
+        density: 7850.0,
+        youngs_modulus: 2.1e11,
+        poisson: 0.3,
+    }
+}
+
+fn table(restitution: f64, friction: f64, rolling: f64) -> MaterialTable {
+    let coefficients = Interaction {
+        restitution,
+        static_friction: friction,
+        rolling_friction: rolling,
+        cohesion: Cohesion::None,
+    };
+    let entry = |a: &str, b: &str| InteractionEntry {
+        a: a.into(),
+        b: b.into(),
+        coefficients,
+    };
+    MaterialSet {
+        damping_law: DampingLaw::default(),
+        materials: vec![ball_material(), wall_material()],
+        interactions: vec![
+            entry("ball", "ball"),
+            entry("ball", "wall"),
+            entry("wall", "wall"),
+        ],
+    }
+    .build()
+    .unwrap()
+}
+
+fn mass(radius: f64) -> f64 {
+    2500.0 * 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3)
+}
+
+fn e_star_same() -> f64 {
+    let m = ball_material();
+    m.youngs_modulus / (2.0 * (1.0 - m.poisson * m.poisson))
+}
+
+fn e_star_wall() -> f64 {
+    let (a, b) = (ball_material(), wall_material());
+    1.0 / ((1.0 - a.poisson.powi(2)) / a.youngs_modulus
+        + (1.0 - b.poisson.powi(2)) / b.youngs_modulus)
+}
+
+fn world(materials: MaterialTable, dt: f64, gravity: Vec3, domain: Domain) -> World {
+    let mut c = WorldConfig::new(dt, domain);
+    c.gravity = gravity;
+    c.integrator = Integrator::SymplecticEuler;
+    c.rolling_model = RollingModel::ConstantDirectionalTorque;
+    World::new(materials, c).unwrap()
+}
+
+fn ball(position: Vec3, velocity: Vec3, angular_velocity: Vec3, radius: f64) -> ParticleSpec {
+    ParticleSpec {
+        position,
+        velocity,
+        angular_velocity,
+        radius,
+        material: BALL,
+    }
+}
+
+fn add_mesh(world: &mut World, mesh: TriMesh) {
+    world
+        .add_geometry(Geometry {
+            name: "wall".into(),
+            mesh,
+            motion: Motion::stationary(Pose::identity()),
+            material: WALL,
+        })
+        .unwrap();
+}
+
+/// A square plane z = 0 of 2 × cells² triangles.
+fn plane(half_width: f64, cells: usize) -> TriMesh {
+    let mut vertices = Vec::new();
+    let step = 2.0 * half_width / cells as f64;
+    for y in 0..=cells {
+        for x in 0..=cells {
+            vertices.push(Vec3::new(
+                -half_width + x as f64 * step,
+                -half_width + y as f64 * step,
+                0.0,
+            ));
+        }
+    }
+    let row = cells as u32 + 1;
+    let mut triangles = Vec::new();
+    for y in 0..cells as u32 {
+        for x in 0..cells as u32 {
+            let a = y * row + x;
+            triangles.push([a, a + 1, a + row + 1]);
+            triangles.push([a, a + row + 1, a + row]);
+        }
+    }
+    TriMesh::new(vertices, triangles).unwrap()
+}
+
+/// The force on particle `k` during the first step from rest: m Δv / Δt.
+fn first_step_force(gpu: &Gpu, world: &World, k: usize) -> Vec3 {
+    let mut w = GpuWorld::new(gpu, world).unwrap();
+    w.run(1);
+    let p = w.particles().unwrap();
+    p.velocity[k] * (world.particles().mass[k] / world.config().time_step)
+}
+
+fn hertz(e_star: f64, r_star: f64, overlap: f64) -> f64 {
+    4.0 / 3.0 * e_star * r_star.sqrt() * overlap.powf(1.5)
+}
+
+#[test]
+fn hertz_force_against_overlap_anywhere_in_a_03_m_domain() {
+    let Some(gpu) = common::gpu() else { return };
+    let r = 1.0e-3;
+    let domain = Domain::closed(Vec3::zeros(), Vec3::repeat(0.3));
+    // Near the far corner, where an f32 position resolves only ~3e-8 m (3 % of the smallest
+    // overlap here): voxel + offset keeps the overlap exact to ~1e-10 m.
+    let origin = Vec3::repeat(0.29);
+    for fraction in [1e-3, 1e-2, 1e-1] {
+        let overlap = fraction * r;
+        let mut w = world(table(0.5, 0.5, 0.0), 1e-7, Vec3::zeros(), domain);
+        w.add_particle(ball(origin, Vec3::zeros(), Vec3::zeros(), r))
+            .unwrap();
+        let other = origin + Vec3::new(2.0 * r - overlap, 0.0, 0.0);
+        w.add_particle(ball(other, Vec3::zeros(), Vec3::zeros(), r))
+            .unwrap();
+        let f = first_step_force(&gpu, &w, 0);
+        let expected = hertz(e_star_same(), r / 2.0, overlap);
+        println!(
+            "overlap {fraction:e} r: GPU {:.6e} N, Hertz {expected:.6e} N",
+            -f.x
+        );
+        assert!(
+            (-f.x / expected - 1.0).abs() < 1e-3,
+            "overlap {fraction:e} r: {} vs {expected}",
+            -f.x
+        );
+        assert!(f.y.abs() < 1e-6 * expected && f.z.abs() < 1e-6 * expected);
+    }
+}
+
+#[test]
+fn a_sphere_on_a_triangle_face_edge_and_corner_feels_hertz_along_the_contact_normal() {
+    let Some(gpu) = common::gpu() else { return };
+    let r = 2.0e-3;
+    let overlap = 1e-2 * r;
+    let domain = Domain::closed(Vec3::repeat(-0.05), Vec3::repeat(0.05));
+    // The triangle (0,0,0) (0.02,0,0) (0,0.02,0); the sphere touches, at `overlap`,
+    // the face from above, the hypotenuse edge from outside (in the plane), the corner at
+    // the origin from below-left.
+    let edge_normal = Vec3::new(1.0, 1.0, 0.0).normalize();
+    let corner_normal = Vec3::new(-1.0, -1.0, -1.0).normalize();
+    let cases = [
+        ("face", Vec3::new(0.005, 0.005, 0.0), Vec3::z()),
+        ("edge", Vec3::new(0.01, 0.01, 0.0), edge_normal),
+        ("corner", Vec3::zeros(), corner_normal),
+    ];
+    for (name, point, normal) in cases {
+        let mut w = world(table(0.5, 0.5, 0.0), 1e-8, Vec3::zeros(), domain);
+        let triangle = TriMesh::new(
+            vec![
+                Vec3::zeros(),
+                Vec3::new(0.02, 0.0, 0.0),
+                Vec3::new(0.0, 0.02, 0.0),
+            ],
+            vec![[0, 1, 2]],
+        )
+        .unwrap();
+        add_mesh(&mut w, triangle);
+        let centre = point + normal * (r - overlap);
+        w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
+            .unwrap();
+        let f = first_step_force(&gpu, &w, 0);
+        let expected = hertz(e_star_wall(), r, overlap);
+        println!("{name}: |F| {:.6e} N, Hertz {expected:.6e} N", f.norm());
+        assert!((f.norm() / expected - 1.0).abs() < 1e-3, "{name}: {f:?}");
+        assert!(
+            f.normalize().dot(&normal) > 1.0 - 1e-6,
+            "{name}: direction {f:?}"
+        );
+    }
+}
+
+/// Runs `w` in blocks of `block` steps until `done(particles)`, at most `max` steps.
+fn run_until(
+    gpu_world: &mut GpuWorld,
+    block: u64,
+    max: u64,
+    mut done: impl FnMut(&repose_engine_gpu::GpuParticles, f64) -> bool,
+) {
+    while gpu_world.steps() < max {
+        gpu_world.run(block);
+        let p = gpu_world.particles().unwrap();
+        if done(&p, gpu_world.time()) {
+            return;
+        }
+    }
+    panic!("not done after {max} steps");
+}
+
+#[test]
+fn two_spheres_rebound_with_the_input_restitution() {
+    let Some(gpu) = common::gpu() else { return };
+    let r = 0.005;
+    let speed = 0.5;
+    for e in [0.2, 0.5, 0.9] {
+        let tc = hertz_contact_time(mass(r) / 2.0, r / 2.0, e_star_same(), 2.0 * speed);
+        let dt = tc / 400.0;
+        let domain = Domain::closed(Vec3::repeat(-0.1), Vec3::repeat(0.1));
+        let mut w = world(table(e, 0.5, 0.0), dt, Vec3::zeros(), domain);
+        let gap = 0.2 * r;
+        for (side, v) in [(-1.0, speed), (1.0, -speed)] {
+            let x = Vec3::new(side * (r + gap / 2.0), 0.0, 0.0);
+            w.add_particle(ball(x, Vec3::new(v, 0.0, 0.0), Vec3::zeros(), r))
+                .unwrap();
+        }
+        let mut g = GpuWorld::new(&gpu, &w).unwrap();
+        let mut touched = false;
+        run_until(&mut g, 20, 100_000, |p, _| {
+            let touching = (p.position[1] - p.position[0]).norm() < 2.0 * r;
+            touched |= touching;
+            touched && !touching
+        });
+        let p = g.particles().unwrap();
+        let measured = (p.velocity[1].x - p.velocity[0].x) / (2.0 * speed);
+        println!("sphere-sphere e {e}: GPU {measured:.5}");
+        assert!((measured - e).abs() < 0.02 * e, "e = {e}: {measured}");
+    }
+}
+
+#[test]
+fn a_sphere_dropped_on_a_plane_rebounds_with_the_input_restitution() {
+    let Some(gpu) = common::gpu() else { return };
+    let r = 0.005;
+    let impact = 3.0;
+    for e in [0.2, 0.5, 0.9] {
+        let tc = hertz_contact_time(mass(r), r, e_star_wall(), impact);
+        let domain = Domain::closed(Vec3::repeat(-0.06), Vec3::repeat(0.06));
+        // No gravity: the rebound speed is the impact's times e exactly.
+        let mut w = world(table(e, 0.5, 0.0), tc / 400.0, Vec3::zeros(), domain);
+        add_mesh(&mut w, plane(0.05, 8));
+        let x = Vec3::new(0.001, 0.002, r + 1.0e-4);
+        w.add_particle(ball(x, Vec3::new(0.0, 0.0, -impact), Vec3::zeros(), r))
+            .unwrap();
+        let mut g = GpuWorld::new(&gpu, &w).unwrap();
+        let mut touched = false;
+        run_until(&mut g, 20, 100_000, |p, _| {
+            let touching = p.position[0].z < r;
+            touched |= touching;
+            touched && !touching
+        });
+        let measured = g.particles().unwrap().velocity[0].z / impact;
+        println!("sphere-plane e {e}: GPU {measured:.5}");
+        assert!((measured - e).abs() < 0.02 * e, "e = {e}: {measured}");
+    }
+}
+
+fn resting_overlap(r: f64, g: f64) -> f64 {
+    (mass(r) * g / (4.0 / 3.0 * e_star_wall() * r.sqrt())).powf(2.0 / 3.0)
+}
+
+/// A sphere of radius 5 mm resting on a 90-cell plane, launched with `v` and `w`.
+fn sphere_on_plane(gpu: &Gpu, friction: f64, rolling: f64, v: Vec3, w: Vec3) -> GpuWorld {
+    let r = 0.005;
+    let materials = table(0.5, friction, rolling);
+    let dt = materials.rayleigh_time_step(BALL, r, 0.2);
+    let domain = Domain::closed(Vec3::new(-1.0, -1.0, -0.05), Vec3::new(1.0, 1.0, 0.05));
+    let mut world = world(materials, dt, Vec3::new(0.0, 0.0, -9.81), domain);
+    add_mesh(&mut world, plane(0.9, 30));
+    let x = Vec3::new(-0.5, 0.003, r - resting_overlap(r, 9.81));
+    world.add_particle(ball(x, v, w, r)).unwrap();
+    GpuWorld::new(gpu, &world).unwrap()
+}
+
+#[test]
+fn a_sliding_sphere_reaches_pure_rolling_at_five_sevenths_of_its_launch_speed() {
+    let Some(gpu) = common::gpu() else { return };
+    let (mu, g, v0, r) = (0.3, 9.81, 1.0, 0.005);
+    let mut world = sphere_on_plane(&gpu, mu, 0.0, Vec3::new(v0, 0.0, 0.0), Vec3::zeros());
+    let slip = |p: &repose_engine_gpu::GpuParticles| {
+        (p.velocity[0] + p.angular_velocity[0].cross(&Vec3::new(0.0, 0.0, -r))).x
+    };
+    let expected_time = 2.0 * v0 / (7.0 * mu * g);
+    let mut previous = (0.0, v0);
+    let mut crossing = None;
+    run_until(&mut world, 10, 1_000_000, |p, t| {
+        let s = slip(p);
+        if s < 1e-3 * v0 {
+            let (t0, s0) = previous;
+            crossing = Some((t0 + (t - t0) * s0 / (s0 - s), p.velocity[0].x));
+            return true;
+        }
+        previous = (t, s);
+        false
+    });
+    let (t, v) = crossing.unwrap();
+    println!(
+        "pure rolling at {t:.5} s (theory {expected_time:.5}), v {v:.5} (theory {:.5})",
+        5.0 / 7.0 * v0
+    );
+    assert!((t / expected_time - 1.0).abs() < 0.02);
+    assert!((v / (5.0 / 7.0 * v0) - 1.0).abs() < 0.02);
+}
+
+#[test]
+fn cdt_rolling_friction_decelerates_at_five_sevenths_mu_r_g() {
+    let Some(gpu) = common::gpu() else { return };
+    let (mu_r, v0, r) = (0.1, 0.5, 0.005);
+    let mut world = sphere_on_plane(
+        &gpu,
+        0.5,
+        mu_r,
+        Vec3::new(v0, 0.0, 0.0),
+        Vec3::new(0.0, v0 / r, 0.0),
+    );
+    world.run_until(0.05);
+    let (t1, v1) = (world.time(), world.particles().unwrap().velocity[0].x);
+    world.run_until(0.3);
+    let (t2, v2) = (world.time(), world.particles().unwrap().velocity[0].x);
+    let measured = (v2 - v1) / (t2 - t1);
+    let expected = -5.0 / 7.0 * mu_r * 9.81;
+    println!("CDT deceleration {measured:.5} m/s² (theory {expected:.5})");
+    assert!((measured / expected - 1.0).abs() < 0.02);
+}
