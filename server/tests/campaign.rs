@@ -331,59 +331,76 @@ async fn a_two_target_campaign_runs_one_batch_per_experiment_and_survives_a_rest
     server.stop().await;
 }
 
-/// The Bayesian strategy's test worker: `angle_deg = 25 + 12·A + 6·B + 2·A·C` and
-/// `cohesion_kpa = 1 + 2·C + 0.8·B²`, each with a deviation drawn from the run's seed (so a run
-/// gives the same answer whoever computes it, before or after a restart).
-fn bayes_answer(job: &ClaimResponse) -> Completion {
-    let v = &job.spec["values"];
-    let (a, b, c) = (
-        v["A"].as_f64().unwrap(),
-        v["B"].as_f64().unwrap(),
-        v["C"].as_f64().unwrap(),
-    );
-    let unit = |k: u64| {
-        let h = repose_doe::design::splitmix64(job.seed ^ k);
-        (h >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-    };
-    Completion {
-        lease_token: job.lease_token,
-        metrics: [
-            (
-                "angle_deg".to_owned(),
-                25.0 + 12.0 * a + 6.0 * b + 2.0 * a * c + 0.6 * unit(1),
-            ),
-            (
-                "cohesion_kpa".to_owned(),
-                1.0 + 2.0 * c + 0.8 * b * b + 0.06 * unit(2),
-            ),
-        ]
-        .into(),
-        wall_time_s: 0.0,
-        details: json!({"worker": "test formulas"}),
-        engine_version: Some("replay-engine-0".into()),
-        pictures: Default::default(),
+/// The Bayesian strategy's test worker: runs each job with the real `formula` kind and sends
+/// its metrics, or its failure (permanent, as the real worker does for a `fails_when` region).
+async fn formula_work(server: &TestServer, idle_s: f64, max_jobs: usize) -> usize {
+    let worker = server.register().await;
+    let mut done = 0;
+    while done < max_jobs {
+        let Some(job) = server.claim(worker, idle_s).await else {
+            break;
+        };
+        let (path, body) =
+            match run_experiment(&job.kind, &job.spec, job.seed, &mut |_| Control::Continue) {
+                Ok(outcome) => (
+                    "complete",
+                    serde_json::to_value(Completion {
+                        lease_token: job.lease_token,
+                        metrics: outcome.metrics,
+                        wall_time_s: 0.0,
+                        details: json!({"worker": "test formula worker"}),
+                        engine_version: Some("formula-0".into()),
+                        pictures: Default::default(),
+                    })
+                    .unwrap(),
+                ),
+                Err(err) => {
+                    assert!(err.is_permanent(), "{err}");
+                    (
+                        "fail",
+                        json!({"lease_token": job.lease_token, "error": err.to_string(),
+                               "permanent": true}),
+                    )
+                }
+            };
+        let (status, reply) = server
+            .post(&format!("/v1/jobs/{}/{path}", job.job_id), &body)
+            .await;
+        assert_eq!(status, StatusCode::OK, "{reply}");
+        done += 1;
     }
+    done
 }
 
+/// Two `formula` experiments, coupled targets (angle 31 ± 3 %, cohesion 2.2 ± 5 %, met together
+/// along a curve with A ≤ 0.6), heaps that fail for A > 0.6, seeded noise.
 fn bayes_request() -> Value {
-    let lookup = |metric: &str| {
-        json!({"kind": "table_lookup", "spec": {
-            "values": {"A": 0.0, "B": 0.0, "C": 0.0},
-            "rows": [{"A": -99.0, "B": -99.0, "C": -99.0, metric: 0.0}]
-        }})
+    let formula = |metric: &str, expression: &str, sd: f64| {
+        let mut spec = json!({
+            "inputs": {"A": 0.0, "B": 0.0, "C": 0.0},
+            "responses": {metric: expression},
+            "noise_sd": {metric: sd},
+        });
+        if metric == "angle_deg" {
+            spec["fails_when"] = json!("A > 0.6");
+        }
+        json!({"kind": "formula", "spec": spec})
     };
     json!({
         "name": "bayesian via the server",
         "strategy": {"type": "bayesian", "max_runs": 80, "batch_size": 4},
-        "experiments": {"aor": lookup("angle_deg"), "shear": lookup("cohesion_kpa")},
+        "experiments": {
+            "aor": formula("angle_deg", "25 + 12*A + 6*B + 2*A*C", 0.3),
+            "shear": formula("cohesion_kpa", "1 + 2*C + 0.8*B^2", 0.03),
+        },
         "targets": [
             {"response": "aor.angle_deg", "target": 31.0, "tolerance": {"relative_pct": 3}},
             {"response": "shear.cohesion_kpa", "target": 2.2, "tolerance": {"relative_pct": 5}}
         ],
         "factors": [
-            {"name": "A", "path": "values.A", "low": 0.0, "high": 1.0},
-            {"name": "B", "path": "values.B", "low": 0.0, "high": 1.0},
-            {"name": "C", "path": "values.C", "low": 0.0, "high": 1.0}
+            {"name": "A", "path": "inputs.A", "low": 0.0, "high": 1.0},
+            {"name": "B", "path": "inputs.B", "low": 0.0, "high": 1.0},
+            {"name": "C", "path": "inputs.C", "low": 0.0, "high": 1.0}
         ],
         "seed": 21,
     })
@@ -403,12 +420,12 @@ async fn bayes_campaign(restart_after: Option<usize>) -> Value {
     assert_eq!(batches.len(), 2, "{view:#}");
     assert!(batches.iter().all(|b| b["stage"] == "design"), "{view:#}");
     if let Some(jobs) = restart_after {
-        assert_eq!(work_with(&server, 5.0, jobs, bayes_answer).await, jobs);
+        assert_eq!(formula_work(&server, 5.0, jobs).await, jobs);
         server.stop().await;
         server = TestServer::start(&db, |_| {}).await;
     }
     for _ in 0..40 {
-        work_with(&server, 1.0, usize::MAX, bayes_answer).await;
+        formula_work(&server, 1.0, usize::MAX).await;
         if campaign(&server, id).await["status"] != "running" {
             break;
         }
