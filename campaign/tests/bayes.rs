@@ -120,6 +120,14 @@ fn start(request: Value) -> (Campaign, Vec<(usize, BatchRequest)>) {
     (campaign, outstanding)
 }
 
+/// The page parses as XML once its doctype and unclosed meta tag are set aside.
+fn well_formed(html: &str) {
+    let body = html
+        .trim_start_matches("<!DOCTYPE html>")
+        .replace("<meta charset=\"utf-8\">", "");
+    roxmltree::Document::parse(&body).expect("well-formed page");
+}
+
 fn value(s: &Summary, name: &str) -> f64 {
     s.parameters.iter().find(|p| p.name == name).unwrap().value
 }
@@ -273,6 +281,27 @@ fn coupled_targets_avoid_the_failure_region_and_report_it() {
     assert!(later <= 4, "{later} failed proposals");
     assert_eq!(summary.targets.len(), 2);
     assert!(summary.simulations.unwrap() <= 80);
+
+    // The report: the convergence, the influences, the region's pairwise projections with the
+    // failed points, all well-formed.
+    let html = repose_campaign::report_html(&campaign, &[], &Default::default());
+    well_formed(&html);
+    for part in [
+        "Bayesian search",
+        "Convergence",
+        "Factor influences",
+        "Region consistent with every measurement",
+        "Failed points",
+        "aria-label=\"c against a\"",
+    ] {
+        assert!(html.contains(part), "{part}");
+    }
+    let svgs = html.matches("<svg").count();
+    // Convergence, influences, and a projection per pair of the three factors.
+    assert_eq!(svgs, 2 + 3, "{svgs} charts");
+    if let Ok(path) = std::env::var("REPOSE_BAYES_REPORT") {
+        std::fs::write(path, &html).unwrap();
+    }
 }
 
 // ------------------------------------------------------------------------------------------
@@ -339,6 +368,10 @@ fn an_impossible_pair_needs_attention_naming_both_responses() {
         .pareto
         .windows(2)
         .all(|w| w[0].misfits[1] >= w[1].misfits[1]));
+    let html = repose_campaign::report_html(&campaign, &[], &Default::default());
+    well_formed(&html);
+    assert!(html.contains("Trade-off between the targets"));
+    assert!(html.contains("In conflict: aor.angle_deg, shear.cohesion_kpa."));
     // Stopped on the conflict, not by running the budget out.
     assert!(
         summary.simulations.unwrap() < 60,
