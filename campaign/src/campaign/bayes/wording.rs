@@ -71,8 +71,7 @@ pub(crate) fn assessment(a: &Assessment, targets: &[Target], names: &[String]) -
         .map(|(t, v)| format!("{} {}", t.label, fmt_num(*v)))
         .collect();
     let mut text = format!(
-        "Round {}: the best point ({}) meets every target with probability {} (predicted {}).",
-        a.round,
+        "The surrogates' best point ({}) meets every target with probability {} (predicted {}).",
         setting(names, &a.best),
         pct(a.probability),
         predicted.join(", ")
