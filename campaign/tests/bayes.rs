@@ -458,3 +458,57 @@ fn chain_settings_and_bad_bayesian_settings_are_refused_naming_the_field() {
         .get("strategy")
         .is_none());
 }
+
+// ------------------------------------------------------------------------------------------
+// The example campaign files.
+
+#[test]
+fn every_example_campaign_file_begins_and_the_formula_one_is_verified() {
+    let dir = format!("{}/../examples/campaigns", env!("CARGO_MANIFEST_DIR"));
+    let mut seen = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "json") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let request: CampaignRequest =
+            serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let bayesian = !request.strategy.is_doe();
+        let (campaign, batches) =
+            Campaign::begin(request).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        if bayesian {
+            // The start design of every experiment at once.
+            assert_eq!(batches.len(), campaign.request.experiment_keys().len());
+        }
+        seen += 1;
+        if path.ends_with("formula_two_targets_bayesian.json") {
+            let mut outstanding: Vec<(usize, BatchRequest)> =
+                batches.into_iter().enumerate().collect();
+            let mut campaign = campaign;
+            while let Some((index, batch)) = outstanding.pop() {
+                let result = run_batch_with(index, &batch, |spec, seed| {
+                    repose_experiments::catalog::run_experiment("formula", spec, seed, &mut |_| {
+                        repose_experiments::aor::Control::Continue
+                    })
+                    .map(|o| o.metrics)
+                    .map_err(|e| e.to_string())
+                });
+                if let Step::Submit(next) = campaign.step(&result).unwrap() {
+                    let first = campaign.batches.len() - next.len();
+                    outstanding.extend(next.into_iter().enumerate().map(|(i, b)| (first + i, b)));
+                }
+            }
+            assert_eq!(
+                campaign.status,
+                Status::Finished,
+                "{:#?}",
+                campaign.decisions
+            );
+            let summary = campaign.summary.unwrap();
+            assert!(summary.within_tolerance);
+            assert!(summary.bayesian.unwrap().infeasible.len() >= 3);
+        }
+    }
+    assert!(seen >= 6, "{seen} example files");
+}
