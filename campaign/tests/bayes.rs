@@ -11,7 +11,7 @@ use common::run_batch_with;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use repose_api::BatchRequest;
+use repose_api::{BatchRequest, DesignRequest};
 use repose_campaign::{Campaign, CampaignRequest, StageResult, Status, Step, Summary};
 use serde_json::{json, Value};
 
@@ -511,4 +511,50 @@ fn every_example_campaign_file_begins_and_the_formula_one_is_verified() {
         }
     }
     assert!(seen >= 6, "{seen} example files");
+}
+
+// ------------------------------------------------------------------------------------------
+// The drilling validation at the verified point.
+
+#[test]
+fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation() {
+    let mut experiments = coupled_experiments();
+    let mut request = coupled(3, 31.0, 2.2);
+    request["validation"] = json!({
+        "experiment": template(&["a", "b", "c"]),
+        "measured": {"opening_mm": 60.0},
+    });
+    // The drill's opening grows with a: 50 + 40·a (so ≈ 56.6 at the answer's a ≈ 0.16).
+    fn opening(x: &BTreeMap<String, f64>) -> Option<f64> {
+        Some(50.0 + 40.0 * x["a"])
+    }
+    experiments.insert(
+        String::new(),
+        Experiment {
+            metrics: vec![("opening_mm", opening as Formula, 0.0)],
+        },
+    );
+    let (campaign, outstanding) = start(request);
+    let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+    let Some(Step::Finished(summary)) = last else {
+        panic!("{last:?}\n{:#?}", campaign.decisions);
+    };
+    let drill = campaign.batches.last().unwrap();
+    assert_eq!(drill.stage, repose_campaign::StageKind::Drilling);
+    let DesignRequest::Explicit { points } = &drill.request.design else {
+        panic!("{:?}", drill.request.design);
+    };
+    let verified: Vec<f64> = summary.parameters.iter().map(|p| p.value).collect();
+    assert_eq!(points, &vec![verified.clone()]);
+    let outcome = summary.drilling.as_ref().expect("drilling outcome");
+    let simulated = outcome.metrics[0].simulated.unwrap();
+    assert!((simulated - (50.0 + 40.0 * verified[0])).abs() < 1e-9);
+    // Not counted: the simulations are the search's and the verification's only.
+    let counted: usize = campaign
+        .batches
+        .iter()
+        .filter(|b| b.stage != repose_campaign::StageKind::Drilling)
+        .map(|b| common::expand(&b.request).len())
+        .sum();
+    assert_eq!(summary.simulations, Some(counted));
 }
