@@ -36,6 +36,11 @@ pub enum CampaignError {
         /// Missing factor.
         factor: String,
     },
+    /// The campaign issues several batches at once: use `Campaign::begin` and `Campaign::step`.
+    #[error(
+        "this campaign keeps several batches outstanding at once; drive it with begin and step"
+    )]
+    SeveralBatches,
     /// A design could not be built (a bug or an impossible setting), with the design error.
     #[error("could not build the {stage} design: {reason}")]
     Design {

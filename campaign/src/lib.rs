@@ -75,6 +75,42 @@
 //! desirable point with every response in tolerance as soon as there is one); the response surface fits one quadratic per
 //! response; the optimum maximises the overall desirability; verification accepts only if
 //! every response is within its own tolerance. The one-target form behaves exactly as before.
+//!
+//! # The Bayesian strategy
+//!
+//! With `"strategy": {"type": "bayesian", "max_runs": 60, "batch_size": 4}` (the default is
+//! `{"type": "doe"}`, the chain above) the campaign varies every candidate factor at once over
+//! its whole range, with no stages and no significance gate (`screening`, `steepest`,
+//! `response_surface` and `stage_experiments` are refused):
+//!
+//! 1. **Start** (`<name>: space-filling start`): a maximin Latin hypercube of
+//!    `initial_points` (default `2·factors + 2`), one explicit batch per experiment the targets
+//!    need, all issued at once ([`Campaign::begin`] returns them all; [`Campaign::step`] takes
+//!    each finished one and answers [`Step::Wait`] until the round is complete).
+//! 2. **Surrogates**: one Gaussian process per response (anisotropic squared-exponential kernel
+//!    with estimated noise, inputs normalised to `[0, 1]`, outputs standardised; the `friedrich`
+//!    crate), and one on feasibility (+1 where every run gave its metrics, −1 where one failed)
+//!    when a run failed.
+//! 3. **Assessment**: over a few thousand candidates (a Latin hypercube and perturbations of the
+//!    best points), the probability that the mean of `verification.replicates` runs of every
+//!    target lands within its tolerance, times the probability of feasibility.
+//! 4. **Verify** (`<name>: verification N`) at the best candidate when that probability reaches
+//!    `stop_probability` (0.8); a failed verification's runs join the data and the search goes
+//!    on. Else **stop** when the targets conflict (each reachable alone with probability ≥ 0.5,
+//!    together below `conflict_probability`, two rounds running; the reason names the
+//!    responses), or when `max_runs` leaves no room (with room for the verification only, the
+//!    best point is verified). Else **propose** (`<name>: search round N`) `batch_size` points by
+//!    kriging believer and go to 2.
+//! 5. The drilling validation, when asked for, runs at the verified point as in the chain.
+//!
+//! The result ([`Summary`]) adds `simulations` and `bayesian` ([`BayesianResult`]: the region
+//! of settings consistent with every measurement, each response's factor influences, the
+//! convergence, the Pareto front of the per-target misfits and the failed points). A campaign
+//! that ends without a verification still carries its best observed point there, with
+//! `within_tolerance: false`. All draws come from `seed` and the round, and the state holds
+//! every observation, so a campaign resumed from its stored JSON decides as an uninterrupted
+//! one.
+mod bayes_report;
 mod campaign;
 mod error;
 mod report;
@@ -82,15 +118,18 @@ mod request;
 mod svg;
 
 pub use campaign::{
-    CalibratedValue, Campaign, CarryRule, Decision, DrillMetric, DrillingOutcome, HeldFactor,
-    IssuedBatch, LevelSetPoint, Next, OptimumChoice, PathPoint, PathState, ResponseCheck,
-    ResponseEffects, ScreeningOutcome, StageKind, StageResult, Status, Summary, SurfaceFitSummary,
-    SurfaceRound, VerificationOutcome,
+    Assessment, BayesState, BayesVerification, BayesianResult, CalibratedValue, Campaign,
+    CarryRule, ConvergencePoint, Decision, DrillMetric, DrillingOutcome, HeldFactor,
+    InfeasiblePoint, Influence, IssuedBatch, LevelSetPoint, Next, Observation, OptimumChoice,
+    ParetoPoint, PathPoint, PathState, Region, ResponseCheck, ResponseEffects, ScreeningOutcome,
+    StageKind, StageResult, Status, Step, Summary, SurfaceFitSummary, SurfaceRound,
+    VerificationOutcome,
 };
 pub use error::CampaignError;
 pub use report::{report_html, report_json, ReportPictures};
 pub use request::{
-    relative_error_pct, CampaignRequest, CandidateFactor, DrillingValidation, PathDirectionSetting,
-    PathStartSetting, ScreeningSettings, StageExperiments, StageTemplate, SteepestSettings,
-    SurfaceDesign, SurfaceSettings, Target, TargetSetting, Tolerance, VerificationSettings,
+    relative_error_pct, BayesianSettings, CampaignRequest, CandidateFactor, DrillingValidation,
+    PathDirectionSetting, PathStartSetting, ScreeningSettings, StageExperiments, StageTemplate,
+    SteepestSettings, Strategy, SurfaceDesign, SurfaceSettings, Target, TargetSetting, Tolerance,
+    VerificationSettings,
 };

@@ -633,6 +633,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         );
     }
     o.push_str("</ol>");
+    o.push_str(&crate::bayes_report::section(c));
 
     // Stage 1.
     if let Some(sc) = &c.screening {

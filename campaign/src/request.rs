@@ -22,6 +22,12 @@ use crate::error::CampaignError;
 pub struct CampaignRequest {
     /// Label; every batch of the campaign is named `<name>: <stage>`.
     pub name: String,
+    /// How the campaign searches: `{"type": "doe"}` (the default: screening → steepest path →
+    /// response surface → optimum → verification) or `{"type": "bayesian", ...}` (Gaussian-process
+    /// surrogates of every response over all candidate factors at once; see
+    /// [`BayesianSettings`]).
+    #[serde(default, skip_serializing_if = "Strategy::is_doe")]
+    pub strategy: Strategy,
     /// The simulation every run starts from (e.g. kind `aor`, preset `fast`); one-target form.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub experiment: Option<ExperimentTemplate>,
@@ -73,6 +79,78 @@ pub struct CampaignRequest {
     /// another name for it.
     #[serde(default, alias = "validation")]
     pub drilling: Option<DrillingValidation>,
+}
+
+/// The campaign strategy, chosen in the campaign file by `type`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Strategy {
+    /// The Design-Expert chain of the paper (screening, steepest path, response surface,
+    /// optimum, verification), each stage with its own settings.
+    #[default]
+    Doe,
+    /// Sequential Bayesian calibration: a space-filling start, then rounds of `batch_size`
+    /// points chosen where every target is most likely met, until one is verified.
+    Bayesian(BayesianSettings),
+}
+
+impl Strategy {
+    /// Whether this is the default chain.
+    pub fn is_doe(&self) -> bool {
+        matches!(self, Strategy::Doe)
+    }
+
+    /// The Bayesian settings, when that strategy is chosen.
+    pub fn bayesian(&self) -> Option<&BayesianSettings> {
+        match self {
+            Strategy::Doe => None,
+            Strategy::Bayesian(b) => Some(b),
+        }
+    }
+}
+
+/// Settings of the Bayesian strategy; every one has a default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BayesianSettings {
+    /// Simulations the campaign may issue in all (every experiment's runs and the verification
+    /// replicates; the drilling validation not). Default 60.
+    pub max_runs: usize,
+    /// Points proposed per round (each run by every experiment the targets need). Default 4.
+    pub batch_size: usize,
+    /// Points of the space-filling start (a maximin Latin hypercube); default `2·factors + 2`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub initial_points: Option<usize>,
+    /// Verify once the best point's probability of meeting every tolerance (under the
+    /// surrogates, for the mean of the verification replicates) reaches this. Default 0.8.
+    pub stop_probability: f64,
+    /// Declare the targets in conflict when every target alone is met with probability ≥ 0.5
+    /// somewhere in the box but all of them together nowhere above this, two rounds running.
+    /// Default 0.02.
+    pub conflict_probability: f64,
+    /// Candidate points scored per proposal (quasi-random plus local perturbations of the best
+    /// points). Default 2000.
+    pub candidates: usize,
+}
+
+impl Default for BayesianSettings {
+    fn default() -> Self {
+        Self {
+            max_runs: 60,
+            batch_size: 4,
+            initial_points: None,
+            stop_probability: 0.8,
+            conflict_probability: 0.02,
+            candidates: 2000,
+        }
+    }
+}
+
+impl BayesianSettings {
+    /// Points of the space-filling start for `factors` candidate factors.
+    pub fn initial_points_for(&self, factors: usize) -> usize {
+        self.initial_points.unwrap_or(2 * factors + 2)
+    }
 }
 
 /// One measured response of the several-targets form.
@@ -185,6 +263,14 @@ impl Default for Tolerance {
 }
 
 impl Tolerance {
+    /// Half-width of the acceptance band around `target`, in response units.
+    pub fn half_width(&self, target: f64) -> f64 {
+        match *self {
+            Tolerance::RelativePct(pct) => pct / 100.0 * target.abs(),
+            Tolerance::Absolute(abs) => abs,
+        }
+    }
+
     /// Whether `value` is accepted for `target`.
     pub fn accepts(&self, value: f64, target: f64) -> bool {
         match *self {
@@ -541,6 +627,9 @@ impl CampaignRequest {
             }
         }
         self.validate_targets()?;
+        if let Some(b) = self.strategy.bayesian() {
+            self.validate_bayesian(b)?;
+        }
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             return Err(bad(
                 "alpha",
@@ -649,6 +738,76 @@ impl CampaignRequest {
                     "is not a candidate factor".into(),
                 ));
             }
+        }
+        Ok(())
+    }
+
+    /// The Bayesian strategy's settings, and the chain's stage settings it has no use for.
+    fn validate_bayesian(&self, b: &BayesianSettings) -> Result<(), CampaignError> {
+        let bad = |field: &str, reason: String| CampaignError::InvalidRequest {
+            field: field.to_owned(),
+            reason,
+        };
+        let unused = "is a setting of the `doe` chain; the bayesian strategy varies every \
+                      candidate factor at once and has no stages (leave it out)";
+        for (field, given) in [
+            ("screening", self.screening != ScreeningSettings::default()),
+            ("steepest", self.steepest != SteepestSettings::default()),
+            (
+                "response_surface",
+                self.response_surface != SurfaceSettings::default(),
+            ),
+            (
+                "stage_experiments",
+                self.stage_experiments != StageExperiments::default(),
+            ),
+        ] {
+            if given {
+                return Err(bad(field, unused.into()));
+            }
+        }
+        if b.batch_size == 0 {
+            return Err(bad("strategy.batch_size", "must be at least 1".into()));
+        }
+        let initial = b.initial_points_for(self.factors.len());
+        if initial < 2 {
+            return Err(bad(
+                "strategy.initial_points",
+                format!("must be at least 2, got {initial}"),
+            ));
+        }
+        let experiments = self.experiment_keys().len();
+        let least = (initial + self.verification.replicates as usize) * experiments;
+        if b.max_runs < least {
+            return Err(bad(
+                "strategy.max_runs",
+                format!(
+                    "must be at least {least} (the {initial} start points and the {} \
+                     verification replicates, each run by {experiments} experiment(s)), got {}",
+                    self.verification.replicates, b.max_runs
+                ),
+            ));
+        }
+        if !(b.stop_probability > 0.0 && b.stop_probability < 1.0) {
+            return Err(bad(
+                "strategy.stop_probability",
+                format!("must be in (0, 1), got {}", b.stop_probability),
+            ));
+        }
+        if !(b.conflict_probability > 0.0 && b.conflict_probability < b.stop_probability) {
+            return Err(bad(
+                "strategy.conflict_probability",
+                format!(
+                    "must be in (0, stop_probability), got {}",
+                    b.conflict_probability
+                ),
+            ));
+        }
+        if !(100..=100_000).contains(&b.candidates) {
+            return Err(bad(
+                "strategy.candidates",
+                format!("must be between 100 and 100000, got {}", b.candidates),
+            ));
         }
         Ok(())
     }

@@ -5,7 +5,7 @@
 
 use repose_api::{BatchState, RunView};
 use repose_campaign::{
-    Campaign, CampaignRequest, Next, ReportPictures, StageKind, StageResult, StageTemplate, Status,
+    Campaign, CampaignRequest, ReportPictures, StageKind, StageResult, StageTemplate, Status, Step,
 };
 use uuid::Uuid;
 
@@ -34,37 +34,45 @@ pub fn stage_id(stage: repose_campaign::StageKind) -> String {
     }
 }
 
-/// Validates the request, plans its first batch and stores both; returns (campaign, batch) ids.
+/// Validates the request, plans its first batches (one, or a whole round of the Bayesian
+/// strategy) and stores them; returns (campaign, first batch) ids.
 pub async fn create(
     state: &AppState,
     request: CampaignRequest,
     owner: &str,
 ) -> Result<(Uuid, Uuid), AppError> {
     let name = request.name.clone();
-    let (campaign, first) = tokio::task::spawn_blocking(move || {
-        let (campaign, first) = Campaign::start(request).map_err(campaign_error)?;
-        // With several experiments only the first one's batch is submitted now; the others'
-        // screening batches (the same design on their own templates) are checked here too, so
-        // an unknown kind or a bad spec is refused before anything runs.
+    let (campaign, plans) = tokio::task::spawn_blocking(move || {
+        let (campaign, first) = Campaign::begin(request).map_err(campaign_error)?;
         let r = &campaign.request;
-        for key in r.experiment_keys().iter().skip(1) {
-            let mut other = first.clone();
-            other.experiment = r.template_for(StageTemplate::Screening, key);
-            submit::plan_batch(other, 0).map_err(|err| {
-                prefix_field(
-                    err,
-                    &format!("campaign's screening batch of experiment `{key}`"),
-                )
-            })?;
+        if first.len() == 1 {
+            // The chain submits only the first experiment's batch now; the others' screening
+            // batches (the same design on their own templates) are checked here too, so an
+            // unknown kind or a bad spec is refused before anything runs.
+            for key in r.experiment_keys().iter().skip(1) {
+                let mut other = first[0].clone();
+                other.experiment = r.template_for(StageTemplate::Screening, key);
+                submit::plan_batch(other, 0).map_err(|err| {
+                    prefix_field(
+                        err,
+                        &format!("campaign's screening batch of experiment `{key}`"),
+                    )
+                })?;
+            }
         }
-        let plan = submit::plan_batch(first, Uuid::new_v4().as_u64_pair().0)
-            .map_err(|err| prefix_field(err, "campaign's screening batch"))?;
-        Ok::<_, AppError>((campaign, plan))
+        let plans = first
+            .into_iter()
+            .map(|batch| {
+                submit::plan_batch(batch, Uuid::new_v4().as_u64_pair().0)
+                    .map_err(|err| prefix_field(err, "campaign's first batch"))
+            })
+            .collect::<Result<Vec<_>, AppError>>()?;
+        Ok::<_, AppError>((campaign, plans))
     })
     .await
     .map_err(|err| AppError::Internal(format!("campaign planning task: {err}")))??;
     let id = Uuid::new_v4();
-    let batch_id = state
+    let batch_ids = state
         .db
         .insert_campaign(
             id,
@@ -74,12 +82,12 @@ pub async fn create(
                 status: status_label(&campaign.status),
                 stage: &stage_label(&campaign),
                 state: serde_json::to_string(&campaign)?,
-                next: Some(&first),
+                next: &plans,
             },
         )
         .await?;
     crate::orchestrate::jobs_available(state);
-    Ok((id, batch_id))
+    Ok((id, batch_ids[0]))
 }
 
 /// The campaign's stored document.
@@ -136,8 +144,9 @@ pub async fn report_pictures(
     Ok(pictures)
 }
 
-/// Moves the campaign that owns `batch_id` on, if that batch is its outstanding one and has
-/// finished. Safe to call more than once (the store refuses a second advance of the same step).
+/// Moves the campaign that owns `batch_id` on, if that batch is one of its outstanding ones
+/// and has finished. Safe to call more than once (the store refuses a second advance of the
+/// same step).
 pub async fn advance_after_batch(state: &AppState, batch_id: Uuid) -> Result<(), AppError> {
     let Some((campaign_id, index)) = state.db.campaign_of_batch(batch_id).await? else {
         return Ok(());
@@ -145,48 +154,94 @@ pub async fn advance_after_batch(state: &AppState, batch_id: Uuid) -> Result<(),
     advance(state, campaign_id, Some(index)).await
 }
 
-/// Advances a running campaign whose outstanding batch is finished (any batch when
-/// `only_index` is `None`, as at start-up).
+/// Concurrent advances of one campaign (two batches of a round finishing together) are
+/// serialised by the store; the one that lost re-reads and tries again, at most this often.
+const ADVANCE_TRIES: usize = 20;
+
+/// Advances a running campaign with its finished outstanding batch `only_index`, or (when
+/// `None`, as at start-up) with every outstanding batch that has finished.
 pub async fn advance(
     state: &AppState,
     campaign_id: Uuid,
     only_index: Option<i64>,
 ) -> Result<(), AppError> {
+    let mut tries = 0;
+    loop {
+        match advance_once(state, campaign_id, only_index).await? {
+            Advanced::Nothing => return Ok(()),
+            Advanced::Done if only_index.is_some() => return Ok(()),
+            // At start-up: feed the next finished batch, if any.
+            Advanced::Done => tries = 0,
+            Advanced::Raced => {
+                tries += 1;
+                if tries >= ADVANCE_TRIES {
+                    return Err(AppError::Internal(format!(
+                        "campaign {campaign_id} kept changing while it was being advanced"
+                    )));
+                }
+                tracing::debug!(campaign = %campaign_id, "campaign advanced meanwhile; again");
+            }
+        }
+    }
+}
+
+/// What one attempt of [`advance`] did.
+enum Advanced {
+    /// No outstanding batch (of the ones asked for) has finished.
+    Nothing,
+    /// One batch was fed and the step stored.
+    Done,
+    /// Someone else stored a step since this one read the campaign: nothing written.
+    Raced,
+}
+
+async fn advance_once(
+    state: &AppState,
+    campaign_id: Uuid,
+    only_index: Option<i64>,
+) -> Result<Advanced, AppError> {
     let Some(record) = state.db.campaign(campaign_id).await? else {
-        return Ok(());
+        return Ok(Advanced::Nothing);
     };
     let mut campaign = decode(&record)?;
-    let Some(outstanding) = campaign.outstanding() else {
-        return Ok(());
-    };
-    if only_index.is_some_and(|i| i != outstanding as i64) {
-        return Ok(());
+    // The first outstanding batch (of the ones asked for) that has finished.
+    let mut found = None;
+    for outstanding in campaign.outstanding_batches() {
+        if only_index.is_some_and(|i| i != outstanding as i64) {
+            continue;
+        }
+        let Some(&batch_id) = record.batch_ids.get(outstanding) else {
+            return Err(AppError::Internal(format!(
+                "campaign {campaign_id} has no batch #{outstanding}"
+            )));
+        };
+        let Some(status) = state.db.batch_status(batch_id).await? else {
+            continue;
+        };
+        if status.summary.state != BatchState::Active {
+            found = Some((outstanding, batch_id, status.summary.state));
+            break;
+        }
     }
-    let Some(&batch_id) = record.batch_ids.get(outstanding) else {
-        return Err(AppError::Internal(format!(
-            "campaign {campaign_id} has no batch #{outstanding}"
-        )));
+    let Some((outstanding, batch_id, batch_state)) = found else {
+        return Ok(Advanced::Nothing);
     };
-    let Some(status) = state.db.batch_status(batch_id).await? else {
-        return Ok(());
-    };
-    let runs: Vec<RunView> = match status.summary.state {
-        BatchState::Active => return Ok(()),
-        BatchState::Cancelled => Vec::new(),
+    let runs: Vec<RunView> = match batch_state {
         BatchState::Completed => state
             .db
             .list_runs(batch_id)
             .await?
             .map(|(_, runs)| runs)
             .unwrap_or_default(),
+        _ => Vec::new(),
     };
     let analysis = state.db.analysis(batch_id).await?;
-    let next = if status.summary.state == BatchState::Cancelled {
+    let next = if batch_state == BatchState::Cancelled {
         let reason = format!("batch {batch_id} of the campaign was cancelled");
         campaign.status = Status::NeedsAttention {
             reason: reason.clone(),
         };
-        Next::NeedsAttention(reason)
+        Step::NeedsAttention(reason)
     } else {
         let finished = StageResult {
             batch: outstanding,
@@ -194,7 +249,7 @@ pub async fn advance(
             analysis,
         };
         let (advanced, next) = tokio::task::spawn_blocking(move || {
-            let next = campaign.advance(&finished);
+            let next = campaign.step(&finished);
             (campaign, next)
         })
         .await
@@ -207,61 +262,68 @@ pub async fn advance(
                 campaign.status = Status::NeedsAttention {
                     reason: reason.clone(),
                 };
-                Next::NeedsAttention(reason)
+                Step::NeedsAttention(reason)
             }
         }
     };
-    let plan = match &next {
-        Next::Submit(request) => {
-            let request = request.clone();
+    let plans = match &next {
+        Step::Submit(requests) => {
+            let requests = requests.clone();
             let planned = tokio::task::spawn_blocking(move || {
-                submit::plan_batch(request, Uuid::new_v4().as_u64_pair().0)
+                requests
+                    .into_iter()
+                    .map(|request| submit::plan_batch(request, Uuid::new_v4().as_u64_pair().0))
+                    .collect::<Result<Vec<_>, AppError>>()
             })
             .await
             .map_err(|err| AppError::Internal(format!("planning task: {err}")))?;
             match planned {
-                Ok(plan) => Some(plan),
+                Ok(plans) => plans,
                 Err(err) => {
                     // The generated batch is invalid (e.g. a range clamped to nothing): stop
                     // and say why rather than loop.
                     campaign.status = Status::NeedsAttention {
                         reason: format!("the next batch is not valid: {err}"),
                     };
-                    None
+                    Vec::new()
                 }
             }
         }
-        Next::Finished(_) | Next::NeedsAttention(_) => None,
+        Step::Wait | Step::Finished(_) | Step::NeedsAttention(_) => Vec::new(),
     };
     let stage = stage_label(&campaign);
     let update = CampaignUpdate {
         status: status_label(&campaign.status),
         stage: &stage,
         state: serde_json::to_string(&campaign)?,
-        next: plan.as_ref(),
+        next: &plans,
     };
     match state
         .db
         .advance_campaign(
             campaign_id,
             record.batches_issued,
+            &record.state,
             record.owner.as_deref(),
             update,
         )
         .await?
     {
-        None => tracing::debug!(campaign = %campaign_id, "campaign already advanced"),
-        Some(Some(new_batch)) => {
+        None => return Ok(Advanced::Raced),
+        Some(new_batches) if !new_batches.is_empty() => {
             crate::orchestrate::jobs_available(state);
-            tracing::info!(campaign = %campaign_id, batch = %new_batch, stage = %stage,
-                "campaign issued its next batch");
+            tracing::info!(campaign = %campaign_id, batches = new_batches.len(), stage = %stage,
+                "campaign issued its next batches");
         }
-        Some(None) => {
+        Some(_) if matches!(campaign.status, Status::Running) => {
+            tracing::debug!(campaign = %campaign_id, "campaign waits for the rest of its round")
+        }
+        Some(_) => {
             tracing::info!(campaign = %campaign_id, status = status_label(&campaign.status),
                 "campaign ended")
         }
     }
-    Ok(())
+    Ok(Advanced::Done)
 }
 
 /// Resumes every running campaign (called once at start-up).

@@ -330,3 +330,164 @@ async fn a_two_target_campaign_runs_one_batch_per_experiment_and_survives_a_rest
     assert!(body.to_string().contains("`shear`"), "{body}");
     server.stop().await;
 }
+
+/// The Bayesian strategy's test worker: runs each job with the real `formula` kind and sends
+/// its metrics, or its failure (permanent, as the real worker does for a `fails_when` region).
+async fn formula_work(server: &TestServer, idle_s: f64, max_jobs: usize) -> usize {
+    let worker = server.register().await;
+    let mut done = 0;
+    while done < max_jobs {
+        let Some(job) = server.claim(worker, idle_s).await else {
+            break;
+        };
+        let (path, body) =
+            match run_experiment(&job.kind, &job.spec, job.seed, &mut |_| Control::Continue) {
+                Ok(outcome) => (
+                    "complete",
+                    serde_json::to_value(Completion {
+                        lease_token: job.lease_token,
+                        metrics: outcome.metrics,
+                        wall_time_s: 0.0,
+                        details: json!({"worker": "test formula worker"}),
+                        engine_version: Some("formula-0".into()),
+                        pictures: Default::default(),
+                    })
+                    .unwrap(),
+                ),
+                Err(err) => {
+                    assert!(err.is_permanent(), "{err}");
+                    (
+                        "fail",
+                        json!({"lease_token": job.lease_token, "error": err.to_string(),
+                               "permanent": true}),
+                    )
+                }
+            };
+        let (status, reply) = server
+            .post(&format!("/v1/jobs/{}/{path}", job.job_id), &body)
+            .await;
+        assert_eq!(status, StatusCode::OK, "{reply}");
+        done += 1;
+    }
+    done
+}
+
+/// Two `formula` experiments, coupled targets (angle 31 ± 3 %, cohesion 2.2 ± 5 %, met together
+/// along a curve with A ≤ 0.6), heaps that fail for A > 0.6, seeded noise.
+fn bayes_request() -> Value {
+    let formula = |metric: &str, expression: &str, sd: f64| {
+        let mut spec = json!({
+            "inputs": {"A": 0.0, "B": 0.0, "C": 0.0},
+            "responses": {metric: expression},
+            "noise_sd": {metric: sd},
+        });
+        if metric == "angle_deg" {
+            spec["fails_when"] = json!("A > 0.6");
+        }
+        json!({"kind": "formula", "spec": spec})
+    };
+    json!({
+        "name": "bayesian via the server",
+        "strategy": {"type": "bayesian", "max_runs": 80, "batch_size": 4},
+        "experiments": {
+            "aor": formula("angle_deg", "25 + 12*A + 6*B + 2*A*C", 0.3),
+            "shear": formula("cohesion_kpa", "1 + 2*C + 0.8*B^2", 0.03),
+        },
+        "targets": [
+            {"response": "aor.angle_deg", "target": 31.0, "tolerance": {"relative_pct": 3}},
+            {"response": "shear.cohesion_kpa", "target": 2.2, "tolerance": {"relative_pct": 5}}
+        ],
+        "factors": [
+            {"name": "A", "path": "inputs.A", "low": 0.0, "high": 1.0},
+            {"name": "B", "path": "inputs.B", "low": 0.0, "high": 1.0},
+            {"name": "C", "path": "inputs.C", "low": 0.0, "high": 1.0}
+        ],
+        "seed": 21,
+    })
+}
+
+/// Runs a Bayesian campaign to its end; with `restart_after`, the server is stopped after that
+/// many jobs (mid-round) and a new one on the same database carries on.
+async fn bayes_campaign(restart_after: Option<usize>) -> Value {
+    let (_dir, db) = temp_db();
+    let mut server = TestServer::start(&db, |_| {}).await;
+    let (status, created) = server.post("/v1/campaigns", &bayes_request()).await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    let id: Uuid = serde_json::from_value(created["id"].clone()).unwrap();
+    // Both experiments' start batches are queued at once.
+    let view = campaign(&server, id).await;
+    let batches = view["batch_list"].as_array().unwrap();
+    assert_eq!(batches.len(), 2, "{view:#}");
+    assert!(batches.iter().all(|b| b["stage"] == "design"), "{view:#}");
+    if let Some(jobs) = restart_after {
+        assert_eq!(formula_work(&server, 5.0, jobs).await, jobs);
+        server.stop().await;
+        server = TestServer::start(&db, |_| {}).await;
+    }
+    for _ in 0..40 {
+        formula_work(&server, 1.0, usize::MAX).await;
+        if campaign(&server, id).await["status"] != "running" {
+            break;
+        }
+    }
+    let view = campaign(&server, id).await;
+    let (status, html) = server.get_text(&format!("/v1/campaigns/{id}/report")).await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(html.contains("<html"));
+    server.stop().await;
+    view
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bayesian_campaign_killed_mid_round_ends_as_an_uninterrupted_one() {
+    let whole = bayes_campaign(None).await;
+    assert_eq!(whole["status"], "finished", "{whole:#}");
+    let result = &whole["result"];
+    assert_eq!(result["within_tolerance"], true, "{result:#}");
+    assert!(result["simulations"].as_u64().unwrap() <= 80, "{result:#}");
+    assert!(
+        result["bayesian"]["region"]["points"].is_array(),
+        "{result:#}"
+    );
+    // Every round ran both experiments' batches.
+    let stages: Vec<&str> = whole["batch_list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["stage"].as_str().unwrap())
+        .collect();
+    assert!(stages.contains(&"verification"), "{stages:?}");
+    assert_eq!(stages.len() % 2, 0, "{stages:?}");
+
+    // Killed with 11 of the start design's 16 runs done: one batch finished, one not.
+    let resumed = bayes_campaign(Some(11)).await;
+    assert_eq!(resumed["status"], "finished", "{resumed:#}");
+    assert_eq!(resumed["result"], whole["result"]);
+    assert_eq!(resumed["decisions"], whole["decisions"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bayesian_settings_and_chain_settings_under_it_are_422_naming_the_field() {
+    let (_dir, db) = temp_db();
+    let server = TestServer::start(&db, |_| {}).await;
+    for (change, field) in [
+        (json!({"screening": {"replicates": 2}}), "screening"),
+        (
+            json!({"strategy": {"type": "bayesian", "batch_size": 0}}),
+            "strategy.batch_size",
+        ),
+        (
+            json!({"strategy": {"type": "bayesian", "max_runs": 5}}),
+            "strategy.max_runs",
+        ),
+    ] {
+        let mut request = bayes_request();
+        for (k, v) in change.as_object().unwrap() {
+            request[k] = v.clone();
+        }
+        let (status, body) = server.post("/v1/campaigns", &request).await;
+        assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+        assert_eq!(body["field"], field, "{body}");
+    }
+    server.stop().await;
+}

@@ -7,6 +7,7 @@
 //! sentences of the decision log. `model` holds what all stages share: observations, coding,
 //! fits and the desirability search.
 
+mod bayes;
 mod drilling;
 mod model;
 mod optimum;
@@ -20,6 +21,10 @@ use repose_api::{BatchRequest, DesignRequest, ExperimentTemplate, FactorSpec, Mo
 use repose_doe::design::{splitmix64, Factor};
 use serde::{Deserialize, Serialize};
 
+pub use bayes::{
+    Assessment, BayesState, BayesVerification, BayesianResult, ConvergencePoint, InfeasiblePoint,
+    Influence, Observation, ParetoPoint, Region,
+};
 pub use drilling::{DrillMetric, DrillingOutcome};
 pub(crate) use model::{screening_fit, surface_fit, ModelRole};
 pub use optimum::{LevelSetPoint, OptimumChoice};
@@ -49,6 +54,10 @@ pub enum StageKind {
     Verification,
     /// 6: optional drilling simulation against measured hole metrics.
     Drilling,
+    /// Bayesian strategy: the space-filling start.
+    Design,
+    /// Bayesian strategy: a round of proposals.
+    Search,
 }
 
 impl StageKind {
@@ -61,6 +70,8 @@ impl StageKind {
             StageKind::Optimum => "optimum",
             StageKind::Verification => "verification",
             StageKind::Drilling => "drilling validation",
+            StageKind::Design => "space-filling start",
+            StageKind::Search => "search round",
         }
     }
 }
@@ -125,6 +136,21 @@ pub struct StageResult {
     pub analysis: Option<repose_api::AnalysisView>,
 }
 
+/// What to do after [`Campaign::step`]: the general form, for strategies that keep several
+/// batches outstanding at once.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Step {
+    /// Submit these batches (all at once); call `step` with each when it finishes.
+    Submit(Vec<BatchRequest>),
+    /// Other batches of the round are still running; nothing to submit yet.
+    Wait,
+    /// The campaign is complete.
+    Finished(Summary),
+    /// Stopped: a person must look (reason in plain words). The state says the same, and
+    /// [`Campaign::summary`] may carry the best point found.
+    NeedsAttention(String),
+}
+
 /// What to do after [`Campaign::advance`].
 #[derive(Debug, Clone, PartialEq)]
 pub enum Next {
@@ -175,6 +201,15 @@ pub struct Summary {
     /// target's, except `within_tolerance`, which is over all).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub targets: Vec<ResponseCheck>,
+    /// Bayesian strategy: simulations issued (every experiment's runs and the verification
+    /// replicates; the drilling validation not).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulations: Option<usize>,
+    /// Bayesian strategy: the region, the influences, the convergence, the Pareto front and
+    /// the failed points. Without a verified calibration the fields above describe the best
+    /// point observed (`within_tolerance` false).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bayesian: Option<Box<BayesianResult>>,
 }
 
 /// A campaign's whole state. Serialises to JSON so a server can store it and resume after a
@@ -213,6 +248,9 @@ pub struct Campaign {
     /// desirable setting found; the campaign stops with this reason once it is in.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub unverified: Option<String>,
+    /// Bayesian strategy: its whole state (observations, outstanding batches, assessments).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bayes: Option<BayesState>,
 }
 
 /// Why a campaign stops for a person to look: statistical dead ends, not misuse. The words are
@@ -285,8 +323,21 @@ pub(crate) fn fit_or_reason(
 }
 
 impl Campaign {
-    /// Validates the request and issues the screening batch.
+    /// Validates the request and issues the screening batch. For a strategy that issues
+    /// several batches at once (the Bayesian one with more than one experiment) use
+    /// [`Campaign::begin`].
     pub fn start(request: CampaignRequest) -> Result<(Campaign, BatchRequest), CampaignError> {
+        let (campaign, mut batches) = Campaign::begin(request)?;
+        if batches.len() != 1 {
+            return Err(CampaignError::SeveralBatches);
+        }
+        Ok((campaign, batches.remove(0)))
+    }
+
+    /// Validates the request and issues the first batches: the screening batch of the `doe`
+    /// chain, or the space-filling start of the Bayesian strategy (one batch per experiment,
+    /// all to be submitted at once).
+    pub fn begin(request: CampaignRequest) -> Result<(Campaign, Vec<BatchRequest>), CampaignError> {
         request.validate()?;
         let mut campaign = Campaign {
             request,
@@ -303,21 +354,64 @@ impl Campaign {
             summary: None,
             pending: Vec::new(),
             unverified: None,
+            bayes: None,
         };
-        let batch = campaign.start_screening()?;
-        Ok((campaign, batch))
+        if campaign.request.strategy.is_doe() {
+            let batch = campaign.start_screening()?;
+            return Ok((campaign, vec![batch]));
+        }
+        let batches = campaign.start_bayes();
+        Ok((campaign, batches))
     }
 
-    /// Index of the outstanding batch, if any.
+    /// Index of the outstanding batch, if any (the first, when several are).
     pub fn outstanding(&self) -> Option<usize> {
-        match self.status {
-            Status::Running => self.batches.len().checked_sub(1),
-            _ => None,
+        self.outstanding_batches().first().copied()
+    }
+
+    /// Indices of every outstanding batch (one in the `doe` chain; a whole round in the
+    /// Bayesian strategy).
+    pub fn outstanding_batches(&self) -> Vec<usize> {
+        match (&self.status, &self.bayes) {
+            (Status::Running, Some(state)) => state.waiting.clone(),
+            (Status::Running, None) => self.batches.len().checked_sub(1).into_iter().collect(),
+            _ => Vec::new(),
         }
     }
 
-    /// Feeds the finished outstanding batch and returns what to do next.
+    /// Feeds a finished outstanding batch and returns what to do next; the general form of
+    /// [`Campaign::advance`] for strategies that keep several batches outstanding.
+    pub fn step(&mut self, finished: &StageResult) -> Result<Step, CampaignError> {
+        if self.bayes.is_none() || !matches!(self.status, Status::Running) {
+            return Ok(match self.advance_chain(finished)? {
+                Next::Submit(batch) => Step::Submit(vec![batch]),
+                Next::Finished(summary) => Step::Finished(summary),
+                Next::NeedsAttention(reason) => Step::NeedsAttention(reason),
+            });
+        }
+        self.step_bayes(finished)
+    }
+
+    /// Feeds the finished outstanding batch and returns what to do next. For a campaign that
+    /// keeps several batches outstanding (the Bayesian strategy with more than one experiment)
+    /// use [`Campaign::step`].
     pub fn advance(&mut self, finished: &StageResult) -> Result<Next, CampaignError> {
+        if self.bayes.is_none() {
+            return self.advance_chain(finished);
+        }
+        if self.request.experiment_keys().len() > 1 {
+            return Err(CampaignError::SeveralBatches);
+        }
+        match self.step(finished)? {
+            Step::Submit(mut batches) if batches.len() == 1 => Ok(Next::Submit(batches.remove(0))),
+            Step::Submit(_) | Step::Wait => Err(CampaignError::SeveralBatches),
+            Step::Finished(summary) => Ok(Next::Finished(summary)),
+            Step::NeedsAttention(reason) => Ok(Next::NeedsAttention(reason)),
+        }
+    }
+
+    /// The `doe` chain's advance (and the not-running errors of both strategies).
+    fn advance_chain(&mut self, finished: &StageResult) -> Result<Next, CampaignError> {
         let expected = match &self.status {
             Status::Running => self.batches.len() - 1,
             Status::Finished => {
@@ -357,7 +451,9 @@ impl Campaign {
             StageKind::ResponseSurface => self.after_surface(&results),
             StageKind::Verification => self.after_verification(&results),
             StageKind::Drilling => self.after_drilling(finished),
-            StageKind::Optimum => unreachable!("the optimum stage issues no batch"),
+            StageKind::Optimum | StageKind::Design | StageKind::Search => {
+                unreachable!("the chain issues no batch of this stage")
+            }
         };
         match next {
             Ok(next) => Ok(next),
@@ -468,6 +564,9 @@ impl Campaign {
                 .collect()
         };
         let mut name = match stage {
+            StageKind::Search | StageKind::Verification if self.bayes.is_some() => {
+                format!("{}: {} {}", r.name, stage.label(), self.round)
+            }
             StageKind::ResponseSurface | StageKind::Verification if self.round > 0 => {
                 format!("{}: {} (round {})", r.name, stage.label(), self.round + 1)
             }
@@ -642,6 +741,8 @@ impl Campaign {
             batches: self.batches.len(),
             drilling: self.drilling.clone(),
             targets: v.checks.clone(),
+            simulations: None,
+            bayesian: None,
         };
         self.decide(self.stage, wording::finished(&summary.parameters));
         self.status = Status::Finished;

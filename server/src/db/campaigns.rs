@@ -25,30 +25,30 @@ pub struct CampaignUpdate<'a> {
     pub status: &'a str,
     pub stage: &'a str,
     pub state: String,
-    /// The next batch to issue, if any.
-    pub next: Option<&'a PlannedBatch>,
+    /// The next batches to issue (none, one, or a whole round submitted together).
+    pub next: &'a [PlannedBatch],
 }
 
 // Campaigns: the chain of batches is written here; decisions are made by `repose-campaign`.
 impl Db {
-    /// Stores a new campaign with its first batch, in one transaction; returns the batch id.
+    /// Stores a new campaign with its first batches, in one transaction; returns their ids.
     pub async fn insert_campaign(
         &self,
         id: Uuid,
         name: &str,
         owner: &str,
         update: CampaignUpdate<'_>,
-    ) -> Result<Uuid, DbError> {
+    ) -> Result<Vec<Uuid>, DbError> {
         let now = now_ms();
-        let first = update
-            .next
-            .ok_or_else(|| DbError::Corrupt("a campaign starts with a batch".into()))?;
+        if update.next.is_empty() {
+            return Err(DbError::Corrupt("a campaign starts with a batch".into()));
+        }
         let mut tx = self.begin_write().await?;
-        let result: Result<Uuid, DbError> = async {
+        let result: Result<Vec<Uuid>, DbError> = async {
             sqlx::query(
                 "INSERT INTO campaigns (id, name, owner, status, stage, state, batches_issued,
                                         created_at, updated_at)
-                 VALUES (?, ?, ?, ?, ?, ?, 1, ?, ?)",
+                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
             )
             .bind(id.to_string())
             .bind(name)
@@ -56,35 +56,42 @@ impl Db {
             .bind(update.status)
             .bind(update.stage)
             .bind(&update.state)
+            .bind(update.next.len() as i64)
             .bind(now)
             .bind(now)
             .execute(&mut *tx)
             .await?;
-            let batch_id = insert_batch_tx(&mut tx, first, owner).await?;
-            link_batch(&mut tx, batch_id, id, 0).await?;
-            Ok(batch_id)
+            let mut ids = Vec::with_capacity(update.next.len());
+            for (index, plan) in update.next.iter().enumerate() {
+                let batch_id = insert_batch_tx(&mut tx, plan, owner).await?;
+                link_batch(&mut tx, batch_id, id, index as i64).await?;
+                ids.push(batch_id);
+            }
+            Ok(ids)
         }
         .await;
         tx.finish(result).await
     }
 
-    /// Records a campaign step if nobody advanced it since `issued_before` batches were issued;
-    /// `Ok(None)` when someone did (nothing written). Returns the new batch's id, if one.
+    /// Records a campaign step if nobody advanced it since it was read (`issued_before`
+    /// batches issued and the stored document still `state_before`); `Ok(None)` when someone
+    /// did (nothing written). Returns the new batches' ids (none when nothing is issued).
     pub async fn advance_campaign(
         &self,
         id: Uuid,
         issued_before: i64,
+        state_before: &str,
         owner: Option<&str>,
         update: CampaignUpdate<'_>,
-    ) -> Result<Option<Option<Uuid>>, DbError> {
+    ) -> Result<Option<Vec<Uuid>>, DbError> {
         let now = now_ms();
         let mut tx = self.begin_write().await?;
-        let result: Result<Option<Option<Uuid>>, DbError> = async {
-            let issued_after = issued_before + i64::from(update.next.is_some());
+        let result: Result<Option<Vec<Uuid>>, DbError> = async {
+            let issued_after = issued_before + update.next.len() as i64;
             let changed = sqlx::query(
                 "UPDATE campaigns SET status = ?, stage = ?, state = ?, batches_issued = ?,
                                       updated_at = ?
-                 WHERE id = ? AND batches_issued = ?",
+                 WHERE id = ? AND batches_issued = ? AND state = ?",
             )
             .bind(update.status)
             .bind(update.stage)
@@ -93,21 +100,20 @@ impl Db {
             .bind(now)
             .bind(id.to_string())
             .bind(issued_before)
+            .bind(state_before)
             .execute(&mut *tx)
             .await?
             .rows_affected();
             if changed != 1 {
                 return Ok(None);
             }
-            let batch_id = match update.next {
-                Some(plan) => {
-                    let batch_id = insert_batch_tx(&mut tx, plan, owner.unwrap_or("")).await?;
-                    link_batch(&mut tx, batch_id, id, issued_before).await?;
-                    Some(batch_id)
-                }
-                None => None,
-            };
-            Ok(Some(batch_id))
+            let mut ids = Vec::with_capacity(update.next.len());
+            for (i, plan) in update.next.iter().enumerate() {
+                let batch_id = insert_batch_tx(&mut tx, plan, owner.unwrap_or("")).await?;
+                link_batch(&mut tx, batch_id, id, issued_before + i as i64).await?;
+                ids.push(batch_id);
+            }
+            Ok(Some(ids))
         }
         .await;
         tx.finish(result).await

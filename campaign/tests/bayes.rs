@@ -1,0 +1,560 @@
+//! The Bayesian strategy on closed-form responses whose answers are known, "run" by closures
+//! with seeded Gaussian noise (a test aid, no simulation): a curved one-target level set over
+//! four factors; two coupled targets of two experiments with a failure region; a pair of
+//! targets that cannot be met together; a state stored as JSON mid-run and resumed.
+
+mod common;
+
+use std::collections::BTreeMap;
+
+use common::run_batch_with;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use repose_api::{BatchRequest, DesignRequest};
+use repose_campaign::{Campaign, CampaignRequest, StageResult, Status, Step, Summary};
+use serde_json::{json, Value};
+
+/// A response of the inputs of a run's spec, or `None` where the run fails.
+type Formula = fn(&BTreeMap<String, f64>) -> Option<f64>;
+
+/// One experiment: its metrics, each a formula with a noise standard deviation.
+struct Experiment {
+    metrics: Vec<(&'static str, Formula, f64)>,
+}
+
+fn inputs(spec: &Value) -> BTreeMap<String, f64> {
+    spec["inputs"]
+        .as_object()
+        .expect("inputs")
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_f64().unwrap()))
+        .collect()
+}
+
+fn simulate(e: &Experiment, spec: &Value, seed: u64) -> Result<BTreeMap<String, f64>, String> {
+    let x = inputs(spec);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut out = BTreeMap::new();
+    for (name, f, sd) in &e.metrics {
+        let Some(v) = f(&x) else {
+            return Err("the formula's failure condition holds".into());
+        };
+        let noise = Normal::new(0.0, *sd).unwrap().sample(&mut rng);
+        out.insert((*name).to_owned(), v + noise);
+    }
+    Ok(out)
+}
+
+fn template(factors: &[&str]) -> Value {
+    let inputs: BTreeMap<&str, f64> = factors.iter().map(|f| (*f, 0.0)).collect();
+    json!({"kind": "formula", "spec": {"inputs": inputs}})
+}
+
+fn factors(names: &[&str]) -> Value {
+    Value::Array(
+        names
+            .iter()
+            .map(|n| json!({"name": n, "path": format!("inputs.{n}"), "low": 0.0, "high": 1.0}))
+            .collect(),
+    )
+}
+
+/// Runs one batch of the campaign with the experiment it names.
+fn run(
+    index: usize,
+    batch: &BatchRequest,
+    experiments: &BTreeMap<String, Experiment>,
+) -> StageResult {
+    let key = batch
+        .name
+        .rsplit_once('[')
+        .map(|(_, k)| k.trim_end_matches(']').to_owned())
+        .unwrap_or_default();
+    let e = experiments
+        .get(&key)
+        .or_else(|| experiments.get(""))
+        .expect("experiment");
+    run_batch_with(index, batch, |spec, seed| simulate(e, spec, seed))
+}
+
+/// Drives a campaign to its end, every batch of a round run (in reverse issue order, so the
+/// round really waits for its last batch); `stop_after` stops early (after that many steps)
+/// and returns the campaign as it is.
+fn drive(
+    mut campaign: Campaign,
+    mut outstanding: Vec<(usize, BatchRequest)>,
+    experiments: &BTreeMap<String, Experiment>,
+    stop_after: Option<usize>,
+) -> (Campaign, Vec<(usize, BatchRequest)>, Option<Step>) {
+    let mut steps = 0;
+    let mut last = None;
+    while let Some((index, batch)) = outstanding.pop() {
+        if stop_after.is_some_and(|s| steps >= s) {
+            outstanding.push((index, batch));
+            return (campaign, outstanding, last);
+        }
+        let result = run(index, &batch, experiments);
+        let step = campaign.step(&result).expect("step");
+        steps += 1;
+        if let Step::Submit(batches) = &step {
+            let first = campaign.batches.len() - batches.len();
+            outstanding.extend(
+                batches
+                    .iter()
+                    .cloned()
+                    .enumerate()
+                    .map(|(i, b)| (first + i, b)),
+            );
+        }
+        last = Some(step);
+        assert!(steps < 200, "runaway campaign");
+    }
+    (campaign, outstanding, last)
+}
+
+fn start(request: Value) -> (Campaign, Vec<(usize, BatchRequest)>) {
+    let request: CampaignRequest = serde_json::from_value(request).expect("request parses");
+    let (campaign, batches) = Campaign::begin(request).expect("begins");
+    let outstanding = batches.into_iter().enumerate().collect();
+    (campaign, outstanding)
+}
+
+/// The page parses as XML once its doctype and unclosed meta tag are set aside.
+fn well_formed(html: &str) {
+    let body = html
+        .trim_start_matches("<!DOCTYPE html>")
+        .replace("<meta charset=\"utf-8\">", "");
+    roxmltree::Document::parse(&body).expect("well-formed page");
+}
+
+fn value(s: &Summary, name: &str) -> f64 {
+    s.parameters.iter().find(|p| p.name == name).unwrap().value
+}
+
+fn point(s: &Summary) -> BTreeMap<String, f64> {
+    s.parameters
+        .iter()
+        .map(|p| (p.name.clone(), p.value))
+        .collect()
+}
+
+// ------------------------------------------------------------------------------------------
+// 1. One target, a curved level set over four factors (d moves nothing).
+
+fn curved(x: &BTreeMap<String, f64>) -> Option<f64> {
+    Some(20.0 + 15.0 * (2.5 * x["a"]).tanh() + 6.0 * x["b"] * x["b"] + 3.0 * x["c"] * x["a"])
+}
+
+fn one_target(seed: u64) -> Value {
+    json!({
+        "name": "curved",
+        "strategy": {"type": "bayesian", "max_runs": 60, "batch_size": 4},
+        "experiment": template(&["a", "b", "c", "d"]),
+        "response": "y",
+        "target": 32.0,
+        "tolerance": {"absolute": 0.3},
+        "factors": factors(&["a", "b", "c", "d"]),
+        "seed": seed,
+    })
+}
+
+#[test]
+fn one_target_on_a_curved_level_set_is_verified_well_within_budget() {
+    let experiments = BTreeMap::from([(
+        String::new(),
+        Experiment {
+            metrics: vec![("y", curved as Formula, 0.25)],
+        },
+    )]);
+    for seed in [1, 2, 3] {
+        let (campaign, outstanding) = start(one_target(seed));
+        let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+        let Some(Step::Finished(summary)) = last else {
+            panic!(
+                "seed {seed}: {:?}\n{:#?}",
+                campaign.status, campaign.decisions
+            );
+        };
+        assert!(summary.within_tolerance);
+        let truth = curved(&point(&summary)).unwrap();
+        assert!(
+            (truth - 32.0).abs() <= 0.3,
+            "seed {seed}: noise-free value {truth} at the calibrated point"
+        );
+        let sims = summary.simulations.expect("simulations");
+        eprintln!("seed {seed}: verified in {sims} simulations, noise-free value {truth}");
+        assert!(sims <= 60, "{sims}");
+        let bayes = summary.bayesian.as_ref().expect("bayesian result");
+        // The region is a level set: it spans much of b's range, and `d` is the factor with the
+        // least influence.
+        assert!(!bayes.region.points.is_empty());
+        let influence = &bayes.influences[0];
+        let d_share = influence.share[3];
+        assert!(
+            influence.share[..3].iter().any(|s| *s > d_share),
+            "{influence:?}"
+        );
+        assert!(!bayes.convergence.is_empty());
+        assert!(bayes.infeasible.is_empty());
+        assert_eq!(campaign.status, Status::Finished);
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// 2. Two experiments, coupled targets, a failure region (a > 0.6 fails the heap).
+
+fn angle(x: &BTreeMap<String, f64>) -> Option<f64> {
+    (x["a"] <= 0.6).then(|| 25.0 + 12.0 * x["a"] + 6.0 * x["b"] + 2.0 * x["a"] * x["c"])
+}
+
+fn cohesion(x: &BTreeMap<String, f64>) -> Option<f64> {
+    Some(1.0 + 2.0 * x["c"] + 0.8 * x["b"] * x["b"])
+}
+
+fn coupled(seed: u64, angle_target: f64, cohesion_target: f64) -> Value {
+    json!({
+        "name": "coupled",
+        "strategy": {"type": "bayesian", "max_runs": 80, "batch_size": 4},
+        "experiments": {"aor": template(&["a", "b", "c"]), "shear": template(&["a", "b", "c"])},
+        "targets": [
+            {"response": "aor.angle_deg", "target": angle_target,
+             "tolerance": {"relative_pct": 3}},
+            {"response": "shear.cohesion_kpa", "target": cohesion_target,
+             "tolerance": {"relative_pct": 5}}
+        ],
+        "factors": factors(&["a", "b", "c"]),
+        "seed": seed,
+    })
+}
+
+fn coupled_experiments() -> BTreeMap<String, Experiment> {
+    BTreeMap::from([
+        (
+            "aor".to_owned(),
+            Experiment {
+                metrics: vec![("angle_deg", angle as Formula, 0.3)],
+            },
+        ),
+        (
+            "shear".to_owned(),
+            Experiment {
+                metrics: vec![("cohesion_kpa", cohesion as Formula, 0.03)],
+            },
+        ),
+    ])
+}
+
+#[test]
+fn coupled_targets_avoid_the_failure_region_and_report_it() {
+    let experiments = coupled_experiments();
+    let (campaign, outstanding) = start(coupled(3, 31.0, 2.2));
+    // Every round issues one batch per experiment, together.
+    assert_eq!(outstanding.len(), 2);
+    assert_eq!(campaign.outstanding_batches(), vec![0, 1]);
+    let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+    let Some(Step::Finished(summary)) = last else {
+        panic!("{:?}\n{:#?}", campaign.status, campaign.decisions);
+    };
+    let x = point(&summary);
+    assert!(value(&summary, "a") <= 0.6, "{x:?}");
+    let (a, c) = (angle(&x).unwrap(), cohesion(&x).unwrap());
+    assert!((a - 31.0).abs() <= 0.03 * 31.0, "angle {a}");
+    assert!((c - 2.2).abs() <= 0.05 * 2.2, "cohesion {c}");
+    eprintln!(
+        "coupled: {} simulations, {x:?}",
+        summary.simulations.unwrap()
+    );
+    let bayes = summary.bayesian.as_ref().unwrap();
+    // The Latin hypercube start puts at least three of its eight points beyond a = 0.6.
+    assert!(bayes.infeasible.len() >= 3, "{:?}", bayes.infeasible);
+    assert!(bayes.infeasible.iter().all(|p| p.point[0] > 0.6));
+    // Few proposals went there once failures were seen.
+    let later = campaign
+        .bayes
+        .as_ref()
+        .unwrap()
+        .observations
+        .iter()
+        .filter(|o| o.round > 0 && o.failed.is_some())
+        .count();
+    assert!(later <= 4, "{later} failed proposals");
+    assert_eq!(summary.targets.len(), 2);
+    assert!(summary.simulations.unwrap() <= 80);
+
+    // The report: the convergence, the influences, the region's pairwise projections with the
+    // failed points, all well-formed.
+    let html = repose_campaign::report_html(&campaign, &[], &Default::default());
+    well_formed(&html);
+    for part in [
+        "Bayesian search",
+        "Convergence",
+        "Factor influences",
+        "Region consistent with every measurement",
+        "Failed points",
+        "aria-label=\"c against a\"",
+    ] {
+        assert!(html.contains(part), "{part}");
+    }
+    let svgs = html.matches("<svg").count();
+    // Convergence, influences, and a projection per pair of the three factors.
+    assert_eq!(svgs, 2 + 3, "{svgs} charts");
+    if let Ok(path) = std::env::var("REPOSE_BAYES_REPORT") {
+        std::fs::write(path, &html).unwrap();
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// 3. An impossible pair: both responses rise with a alone; their targets need different a.
+
+fn rising(x: &BTreeMap<String, f64>) -> Option<f64> {
+    Some(10.0 + 5.0 * x["a"] + 0.3 * x["b"])
+}
+
+fn also_rising(x: &BTreeMap<String, f64>) -> Option<f64> {
+    Some(20.0 + 10.0 * x["a"] - 0.2 * x["b"])
+}
+
+#[test]
+fn an_impossible_pair_needs_attention_naming_both_responses() {
+    let experiments = BTreeMap::from([
+        (
+            "aor".to_owned(),
+            Experiment {
+                metrics: vec![("angle_deg", rising as Formula, 0.05)],
+            },
+        ),
+        (
+            "shear".to_owned(),
+            Experiment {
+                metrics: vec![("cohesion_kpa", also_rising as Formula, 0.1)],
+            },
+        ),
+    ]);
+    // angle 11 needs a ≈ 0.2; cohesion 28 needs a ≈ 0.8.
+    let request = json!({
+        "name": "impossible",
+        "strategy": {"type": "bayesian", "max_runs": 60, "batch_size": 4},
+        "experiments": {"aor": template(&["a", "b"]), "shear": template(&["a", "b"])},
+        "targets": [
+            {"response": "aor.angle_deg", "target": 11.0, "tolerance": {"relative_pct": 2}},
+            {"response": "shear.cohesion_kpa", "target": 28.0, "tolerance": {"relative_pct": 2}}
+        ],
+        "factors": factors(&["a", "b"]),
+        "seed": 9,
+    });
+    let (campaign, outstanding) = start(request);
+    let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+    let Some(Step::NeedsAttention(reason)) = last else {
+        panic!("{last:?}\n{:#?}", campaign.decisions);
+    };
+    assert!(reason.contains("aor.angle_deg"), "{reason}");
+    assert!(reason.contains("shear.cohesion_kpa"), "{reason}");
+    assert!(reason.contains("cannot be met together"), "{reason}");
+    let summary = campaign
+        .summary
+        .as_ref()
+        .expect("a result on needs attention");
+    assert!(!summary.within_tolerance);
+    eprintln!(
+        "impossible: {reason} ({:?} simulations)",
+        summary.simulations
+    );
+    let bayes = summary.bayesian.as_ref().unwrap();
+    assert_eq!(bayes.conflict, vec!["aor.angle_deg", "shear.cohesion_kpa"]);
+    // The trade-off: more than one non-dominated compromise, misfits trading off.
+    assert!(bayes.pareto.len() >= 2, "{:?}", bayes.pareto);
+    assert!(bayes
+        .pareto
+        .windows(2)
+        .all(|w| w[0].misfits[1] >= w[1].misfits[1]));
+    let html = repose_campaign::report_html(&campaign, &[], &Default::default());
+    well_formed(&html);
+    assert!(html.contains("Trade-off between the targets"));
+    assert!(html.contains("In conflict: aor.angle_deg, shear.cohesion_kpa."));
+    // Stopped on the conflict, not by running the budget out.
+    assert!(
+        summary.simulations.unwrap() < 60,
+        "{:?}",
+        summary.simulations
+    );
+}
+
+// ------------------------------------------------------------------------------------------
+// 4. Stored as JSON mid-run, resumed: the same decisions and the same end.
+
+#[test]
+fn a_state_stored_mid_run_and_resumed_ends_as_an_uninterrupted_one() {
+    let experiments = coupled_experiments();
+    let (campaign, outstanding) = start(coupled(5, 31.0, 2.2));
+    let (whole, _, _) = drive(campaign, outstanding, &experiments, None);
+    assert_eq!(whole.status, Status::Finished, "{:#?}", whole.decisions);
+
+    let (campaign, outstanding) = start(coupled(5, 31.0, 2.2));
+    // Stop with one batch of a round in and the other outstanding.
+    let (partial, outstanding, _) = drive(campaign, outstanding, &experiments, Some(3));
+    assert_eq!(partial.outstanding_batches().len(), 1, "mid-round");
+    let stored = serde_json::to_string(&partial).unwrap();
+    let resumed: Campaign = serde_json::from_str(&stored).unwrap();
+    assert_eq!(resumed, partial);
+    let (resumed, _, _) = drive(resumed, outstanding, &experiments, None);
+    assert_eq!(resumed.decisions, whole.decisions);
+    assert_eq!(resumed.summary, whole.summary);
+    assert_eq!(resumed, whole);
+}
+
+// ------------------------------------------------------------------------------------------
+// Settings.
+
+#[test]
+fn chain_settings_and_bad_bayesian_settings_are_refused_naming_the_field() {
+    let refused = |extra: Value, field: &str| {
+        let mut r = one_target(1);
+        for (k, v) in extra.as_object().unwrap() {
+            r[k] = v.clone();
+        }
+        let request: CampaignRequest = serde_json::from_value(r).expect("parses");
+        let err = Campaign::begin(request).expect_err("refused");
+        match err {
+            repose_campaign::CampaignError::InvalidRequest { field: f, .. } => {
+                assert_eq!(f, field)
+            }
+            other => panic!("{other:?}"),
+        }
+    };
+    refused(json!({"screening": {"replicates": 2}}), "screening");
+    refused(json!({"steepest": {"max_points": 4}}), "steepest");
+    refused(
+        json!({"response_surface": {"max_extra_rounds": 1}}),
+        "response_surface",
+    );
+    refused(
+        json!({"stage_experiments": {"verification": template(&["a"])}}),
+        "stage_experiments",
+    );
+    refused(
+        json!({"strategy": {"type": "bayesian", "batch_size": 0}}),
+        "strategy.batch_size",
+    );
+    refused(
+        json!({"strategy": {"type": "bayesian", "max_runs": 10}}),
+        "strategy.max_runs",
+    );
+    refused(
+        json!({"strategy": {"type": "bayesian", "stop_probability": 1.5}}),
+        "strategy.stop_probability",
+    );
+    // Unknown settings are a parse error.
+    let mut r = one_target(1);
+    r["strategy"] = json!({"type": "bayesian", "max_rnus": 10});
+    assert!(serde_json::from_value::<CampaignRequest>(r).is_err());
+    // `{"type": "doe"}` is the default and is not written back.
+    let mut r = one_target(1);
+    r["strategy"] = json!({"type": "doe"});
+    let parsed: CampaignRequest = serde_json::from_value(r).unwrap();
+    assert!(parsed.strategy.is_doe());
+    assert!(serde_json::to_value(&parsed)
+        .unwrap()
+        .get("strategy")
+        .is_none());
+}
+
+// ------------------------------------------------------------------------------------------
+// The example campaign files.
+
+#[test]
+fn every_example_campaign_file_begins_and_the_formula_one_is_verified() {
+    let dir = format!("{}/../examples/campaigns", env!("CARGO_MANIFEST_DIR"));
+    let mut seen = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "json") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let request: CampaignRequest =
+            serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let bayesian = !request.strategy.is_doe();
+        let (campaign, batches) =
+            Campaign::begin(request).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        if bayesian {
+            // The start design of every experiment at once.
+            assert_eq!(batches.len(), campaign.request.experiment_keys().len());
+        }
+        seen += 1;
+        if path.ends_with("formula_two_targets_bayesian.json") {
+            let mut outstanding: Vec<(usize, BatchRequest)> =
+                batches.into_iter().enumerate().collect();
+            let mut campaign = campaign;
+            while let Some((index, batch)) = outstanding.pop() {
+                let result = run_batch_with(index, &batch, |spec, seed| {
+                    repose_experiments::catalog::run_experiment("formula", spec, seed, &mut |_| {
+                        repose_experiments::aor::Control::Continue
+                    })
+                    .map(|o| o.metrics)
+                    .map_err(|e| e.to_string())
+                });
+                if let Step::Submit(next) = campaign.step(&result).unwrap() {
+                    let first = campaign.batches.len() - next.len();
+                    outstanding.extend(next.into_iter().enumerate().map(|(i, b)| (first + i, b)));
+                }
+            }
+            assert_eq!(
+                campaign.status,
+                Status::Finished,
+                "{:#?}",
+                campaign.decisions
+            );
+            let summary = campaign.summary.unwrap();
+            assert!(summary.within_tolerance);
+            assert!(summary.bayesian.unwrap().infeasible.len() >= 3);
+        }
+    }
+    assert!(seen >= 6, "{seen} example files");
+}
+
+// ------------------------------------------------------------------------------------------
+// The drilling validation at the verified point.
+
+#[test]
+fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation() {
+    let mut experiments = coupled_experiments();
+    let mut request = coupled(3, 31.0, 2.2);
+    request["validation"] = json!({
+        "experiment": template(&["a", "b", "c"]),
+        "measured": {"opening_mm": 60.0},
+    });
+    // The drill's opening grows with a: 50 + 40·a (so ≈ 56.6 at the answer's a ≈ 0.16).
+    fn opening(x: &BTreeMap<String, f64>) -> Option<f64> {
+        Some(50.0 + 40.0 * x["a"])
+    }
+    experiments.insert(
+        String::new(),
+        Experiment {
+            metrics: vec![("opening_mm", opening as Formula, 0.0)],
+        },
+    );
+    let (campaign, outstanding) = start(request);
+    let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+    let Some(Step::Finished(summary)) = last else {
+        panic!("{last:?}\n{:#?}", campaign.decisions);
+    };
+    let drill = campaign.batches.last().unwrap();
+    assert_eq!(drill.stage, repose_campaign::StageKind::Drilling);
+    let DesignRequest::Explicit { points } = &drill.request.design else {
+        panic!("{:?}", drill.request.design);
+    };
+    let verified: Vec<f64> = summary.parameters.iter().map(|p| p.value).collect();
+    assert_eq!(points, &vec![verified.clone()]);
+    let outcome = summary.drilling.as_ref().expect("drilling outcome");
+    let simulated = outcome.metrics[0].simulated.unwrap();
+    assert!((simulated - (50.0 + 40.0 * verified[0])).abs() < 1e-9);
+    // Not counted: the simulations are the search's and the verification's only.
+    let counted: usize = campaign
+        .batches
+        .iter()
+        .filter(|b| b.stage != repose_campaign::StageKind::Drilling)
+        .map(|b| common::expand(&b.request).len())
+        .sum();
+    assert_eq!(summary.simulations, Some(counted));
+}
