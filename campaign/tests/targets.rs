@@ -354,7 +354,8 @@ fn every_example_campaign_file_is_a_valid_request() {
         let text = std::fs::read_to_string(&path).unwrap();
         let request: CampaignRequest =
             serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        Campaign::start(request.clone()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        // `begin`: a Bayesian example with several experiments issues a batch per experiment.
+        Campaign::begin(request.clone()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         files += 1;
         if path.ends_with("paper_three_targets.json") {
             let labels: Vec<String> = request.targets().into_iter().map(|t| t.label).collect();
