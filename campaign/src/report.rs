@@ -82,6 +82,8 @@ fn provenance(c: &Campaign, results: &[StageResult]) -> Vec<Value> {
                 "spec_sha256": spec_hash(&b.request, run),
                 "engine_version": run.engine_version,
                 "response": response_of(run, &b.request.response),
+                // Why a run gave no result (its last failure), for runs that have none.
+                "reason": (run.status != RunState::Completed).then_some(run.last_error.as_deref()).flatten(),
             }));
         }
     }
@@ -978,6 +980,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
                     esc(p["spec_sha256"].as_str().unwrap_or(""))
                 ),
                 p["response"].as_f64().map_or(s("—"), fmt_num),
+                p["reason"].as_str().map_or(s("—"), esc),
             ]
         })
         .collect();
@@ -985,7 +988,7 @@ pub fn report_html(c: &Campaign, results: &[StageResult], pictures: &ReportPictu
         &mut o,
         &[
             "batch", "run", "seed", "status", "worker", "wall s", "attempts", "engine", "spec",
-            "response",
+            "response", "reason",
         ]
         .map(s),
         &rows,

@@ -558,3 +558,39 @@ fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation()
         .sum();
     assert_eq!(summary.simulations, Some(counted));
 }
+
+#[test]
+fn the_report_gives_each_dead_runs_reason_beside_it() {
+    let experiments = coupled_experiments();
+    let (mut campaign, outstanding) = start(coupled(3, 31.0, 2.2));
+    let mut results = Vec::new();
+    for (index, batch) in &outstanding {
+        let result = run(*index, batch, &experiments);
+        campaign.step(&result).expect("step");
+        results.push(result);
+    }
+    let dead = results
+        .iter()
+        .flat_map(|r| &r.runs)
+        .filter(|r| r.status == repose_api::RunState::Dead)
+        .count();
+    assert!(dead > 0, "the start put no point in the failure region");
+    let html = repose_campaign::report_html(&campaign, &results, &Default::default());
+    let provenance = &html[html.find("Provenance of every run").unwrap()..];
+    let rows: Vec<&str> = provenance.split("<tr>").skip(2).collect();
+    let dead_rows: Vec<&&str> = rows
+        .iter()
+        .filter(|r| r.contains("<td class=\"l\">"))
+        .filter(|r| r.contains(">dead<"))
+        .collect();
+    assert_eq!(dead_rows.len(), dead, "{provenance}");
+    for row in &dead_rows {
+        assert!(row.contains("failure condition holds</td>"), "{row}");
+    }
+    // A run with a result has no reason.
+    assert!(rows
+        .iter()
+        .filter(|r| r.contains(">completed<"))
+        .all(|r| r.contains("<td>—</td></tr>")
+            || r.ends_with("<td>—</td></tr></table></body></html>\n")));
+}
