@@ -77,6 +77,36 @@ struct Row {
     fastest_speed: Option<f64>,
 }
 
+impl Row {
+    /// A measurement as a row; `single` is the CPU engine's one-thread rate on the same bed,
+    /// M particle-steps/s, when measured.
+    fn new(
+        r: &BenchResult,
+        backend: &'static str,
+        single: Option<f64>,
+        settle_seconds: f64,
+        fastest_speed: Option<f64>,
+    ) -> Row {
+        let rate = r.particle_steps_per_second / 1e6;
+        Row {
+            particles: r.particles,
+            backend,
+            threads: r.threads,
+            steps: r.steps,
+            seconds: r.seconds,
+            mega_particle_steps_per_s: rate,
+            speedup_vs_1_thread: single.map(|s| rate / s),
+            contacts_per_particle: r.contacts_per_particle,
+            pairs_per_particle: r.pairs_per_particle,
+            rebuilds: r.rebuilds,
+            model_bytes_per_particle: r.bytes_per_particle,
+            peak_rss_kib: peak_rss_kib(),
+            settle_seconds,
+            fastest_speed,
+        }
+    }
+}
+
 pub fn run(args: &BenchArgs) -> Result<()> {
     match &args.what {
         BenchWhat::Engine(a) => engine(a),
@@ -147,47 +177,22 @@ fn engine(args: &EngineBenchArgs) -> Result<()> {
                 }
                 print_row(
                     args.json,
-                    &Row {
-                        particles: r.particles,
-                        backend: "cpu",
-                        threads,
-                        steps: r.steps,
-                        seconds: r.seconds,
-                        mega_particle_steps_per_s: rate,
-                        speedup_vs_1_thread: single.map(|s| rate / s),
-                        contacts_per_particle: r.contacts_per_particle,
-                        pairs_per_particle: r.pairs_per_particle,
-                        rebuilds: r.rebuilds,
-                        model_bytes_per_particle: r.bytes_per_particle,
-                        peak_rss_kib: peak_rss_kib(),
-                        settle_seconds,
-                        fastest_speed: None,
-                    },
+                    &Row::new(&r, "cpu", single, settle_seconds, None),
                 )?;
             }
         }
         if let Some(gpu) = &gpu {
             let r = repose_engine_gpu::bench::time_steps(gpu, &bed, args.steps)
                 .context("timing the GPU engine")?;
-            let rate = r.particle_steps_per_second / 1e6;
             print_row(
                 args.json,
-                &Row {
-                    particles: r.particles,
-                    backend: "gpu",
-                    threads: 0,
-                    steps: r.steps,
-                    seconds: r.seconds,
-                    mega_particle_steps_per_s: rate,
-                    speedup_vs_1_thread: single.map(|s| rate / s),
-                    contacts_per_particle: r.contacts_per_particle,
-                    pairs_per_particle: r.pairs_per_particle,
-                    rebuilds: r.rebuilds,
-                    model_bytes_per_particle: r.bytes_per_particle,
-                    peak_rss_kib: peak_rss_kib(),
+                &Row::new(
+                    &r.bench,
+                    "gpu",
+                    single,
                     settle_seconds,
-                    fastest_speed: Some(r.fastest_speed),
-                },
+                    Some(r.fastest_speed),
+                ),
             )?;
         }
     }

@@ -3,27 +3,16 @@
 
 use std::time::Instant;
 
-use repose_engine::bench::{bed_lattice, measured_bed, settle, Advance};
+use repose_engine::bench::{bed_lattice, measured_bed, settle, Advance, BenchResult};
 use repose_engine::world::World;
 
 use crate::{Gpu, GpuError, GpuWorld};
 
-/// Measured figures of [`time_steps`].
+/// Measured figures of [`time_steps`]: the CPU benchmark's figures (`threads` 0; bytes are the
+/// device buffers', pairs each listed once) and the fastest grain at the end.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpuBenchResult {
-    pub particles: usize,
-    pub steps: u64,
-    /// Wall-clock time of the timed steps (queued and finished), s.
-    pub seconds: f64,
-    pub particle_steps_per_second: f64,
-    /// Device buffers divided by the particle count.
-    pub bytes_per_particle: f64,
-    /// Particle-particle contacts per particle at the end (each counted for both).
-    pub contacts_per_particle: f64,
-    /// Neighbour-list pairs per particle (each pair once).
-    pub pairs_per_particle: f64,
-    /// Neighbour-list rebuilds during the timed steps.
-    pub rebuilds: u64,
+    pub bench: BenchResult,
     /// The fastest grain at the end, m/s: a settled bed stays at rest (mm/s), so a large
     /// figure says the run is not physical.
     pub fastest_speed: f64,
@@ -82,14 +71,17 @@ pub fn time_steps(gpu: &Gpu, bed: &World, steps: u64) -> Result<GpuBenchResult, 
     let particles = world.particles()?;
     let n = world.len().max(1) as f64;
     Ok(GpuBenchResult {
-        particles: world.len(),
-        steps,
-        seconds,
-        particle_steps_per_second: n * steps as f64 / seconds,
-        bytes_per_particle: world.memory_bytes() as f64 / n,
-        contacts_per_particle: particles.contacts.iter().map(|&c| c as f64).sum::<f64>() / n,
-        pairs_per_particle: world.pair_count()? as f64 / n,
-        rebuilds: after.rebuilds - before.rebuilds,
+        bench: BenchResult {
+            particles: world.len(),
+            threads: 0,
+            steps,
+            seconds,
+            particle_steps_per_second: n * steps as f64 / seconds,
+            bytes_per_particle: world.memory_bytes() as f64 / n,
+            contacts_per_particle: particles.contacts.iter().map(|&c| c as f64).sum::<f64>() / n,
+            pairs_per_particle: world.pair_count()? as f64 / n,
+            rebuilds: after.rebuilds - before.rebuilds,
+        },
         fastest_speed: world.fastest_speed()?,
     })
 }

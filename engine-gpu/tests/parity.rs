@@ -13,7 +13,7 @@ use repose_engine::material::{
     MaterialSet, MaterialTable,
 };
 use repose_engine::math::{Pose, Vec3};
-use repose_engine::mesh::TriMesh;
+use repose_engine::mesh::{generators, TriMesh};
 use repose_engine::neighbor::Domain;
 use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, World, WorldConfig};
@@ -109,29 +109,9 @@ fn add_mesh(world: &mut World, mesh: TriMesh) {
         .unwrap();
 }
 
-/// A square plane z = 0 of 2 × cells² triangles.
+/// A square plane z = 0 of 2 × cells² triangles (the engine's generator).
 fn plane(half_width: f64, cells: usize) -> TriMesh {
-    let mut vertices = Vec::new();
-    let step = 2.0 * half_width / cells as f64;
-    for y in 0..=cells {
-        for x in 0..=cells {
-            vertices.push(Vec3::new(
-                -half_width + x as f64 * step,
-                -half_width + y as f64 * step,
-                0.0,
-            ));
-        }
-    }
-    let row = cells as u32 + 1;
-    let mut triangles = Vec::new();
-    for y in 0..cells as u32 {
-        for x in 0..cells as u32 {
-            let a = y * row + x;
-            triangles.push([a, a + 1, a + row + 1]);
-            triangles.push([a, a + row + 1, a + row]);
-        }
-    }
-    TriMesh::new(vertices, triangles).unwrap()
+    generators::plane(2.0 * half_width, 2.0 * half_width, cells, cells).unwrap()
 }
 
 /// The force on particle `k` during the first step from rest: m Δv / Δt.

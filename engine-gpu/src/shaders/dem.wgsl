@@ -615,6 +615,14 @@ fn drift(i: u32, dx: vec3<f32>) {
     }
 }
 
+// v += F h / m; returns the new velocity.
+fn kick(i: u32, h: f32) -> vec3<f32> {
+    let v = vel[i];
+    let nv = v.xyz + frc[i].xyz * (h / v.w);
+    vel[i] = vec4<f32>(nv, v.w);
+    return nv;
+}
+
 // Symplectic Euler: v += F dt / m, spin, x += v dt.
 @compute @workgroup_size(WG)
 fn euler(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -623,12 +631,9 @@ fn euler(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let dt = P.gravity.w;
-    let f = frc[i];
-    let v = vel[i];
-    let nv = v.xyz + f.xyz * (dt / v.w);
-    vel[i] = vec4<f32>(nv, v.w);
+    let nv = kick(i, dt);
     let w = omg[i];
-    omg[i] = vec4<f32>(kick_spin(w.xyz, trq[i].xyz, f.w, w.w, dt), w.w);
+    omg[i] = vec4<f32>(kick_spin(w.xyz, trq[i].xyz, frc[i].w, w.w, dt), w.w);
     drift(i, nv * dt);
 }
 
@@ -640,10 +645,7 @@ fn kick_drift(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let dt = P.gravity.w;
-    let f = frc[i];
-    let v = vel[i];
-    let nv = v.xyz + f.xyz * (0.5 * dt / v.w);
-    vel[i] = vec4<f32>(nv, v.w);
+    let nv = kick(i, 0.5 * dt);
     let w = omg[i];
     omg[i] = vec4<f32>(w.xyz + trq[i].xyz * (0.5 * dt * w.w), w.w);
     drift(i, nv * dt);
@@ -657,11 +659,9 @@ fn half_kick(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let dt = P.gravity.w;
-    let f = frc[i];
-    let v = vel[i];
-    vel[i] = vec4<f32>(v.xyz + f.xyz * (0.5 * dt / v.w), v.w);
+    kick(i, 0.5 * dt);
     let w = omg[i];
-    omg[i] = vec4<f32>(kick_spin(w.xyz, trq[i].xyz, f.w, w.w, 0.5 * dt), w.w);
+    omg[i] = vec4<f32>(kick_spin(w.xyz, trq[i].xyz, frc[i].w, w.w, 0.5 * dt), w.w);
 }
 
 // The fastest particle's speed, as the bits of a non-negative f32 (ordered like the value).
