@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use repose_api::{CcdVariantName, DesignRequest, ExperimentTemplate};
+use repose_api::{CcdVariantName, DesignRequest, ExperimentTemplate, FactorSpec};
 use serde::{Deserialize, Serialize};
 
 use crate::error::CampaignError;
@@ -230,6 +230,18 @@ pub struct CandidateFactor {
     /// paper's was). The drilling validation writes every factor.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub experiments: Option<Vec<String>>,
+}
+
+impl CandidateFactor {
+    /// The factor over its whole allowed range, as a batch names it.
+    pub(crate) fn spec(&self) -> FactorSpec {
+        FactorSpec {
+            name: self.name.clone(),
+            path: Some(self.path.clone()),
+            low: self.low,
+            high: self.high,
+        }
+    }
 }
 
 impl CandidateFactor {

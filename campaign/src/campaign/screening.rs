@@ -1,14 +1,14 @@
 //! Stage 1, screening: which candidate factors matter. [`screen`] reads the first-order fit
 //! and returns a [`ScreeningOutcome`]; the campaign then lays out the steepest path.
 
-use repose_api::{FactorSpec, ModelName};
+use repose_api::ModelName;
 use repose_doe::Fit;
 use serde::{Deserialize, Serialize};
 
 use super::model::{candidate_factors, observations, screening_fit, target_goal};
 use super::{wording, Campaign, Halt, Next, StageKind, StageResult};
 use crate::error::CampaignError;
-use crate::request::CampaignRequest;
+use crate::request::{CampaignRequest, CandidateFactor};
 
 /// Why factors were carried forward from screening.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -237,16 +237,7 @@ impl Campaign {
     /// Issues the screening batch over every candidate.
     pub(super) fn start_screening(&mut self) -> Result<repose_api::BatchRequest, CampaignError> {
         let r = &self.request;
-        let factors = r
-            .factors
-            .iter()
-            .map(|f| FactorSpec {
-                name: f.name.clone(),
-                path: Some(f.path.clone()),
-                low: f.low,
-                high: f.high,
-            })
-            .collect();
+        let factors = r.factors.iter().map(CandidateFactor::spec).collect();
         let design = r.screening.design.clone();
         let replicates = r.screening.replicates;
         let names: Vec<String> = r.factors.iter().map(|f| f.name.clone()).collect();

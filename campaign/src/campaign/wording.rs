@@ -59,7 +59,7 @@ fn describe_design(design: &DesignRequest) -> String {
 }
 
 /// `name value, name value` for a setting.
-fn setting(names: &[String], values: &[f64]) -> String {
+pub(crate) fn setting(names: &[String], values: &[f64]) -> String {
     names
         .iter()
         .zip(values)

@@ -34,7 +34,9 @@ use super::{
     Status, Step, Summary,
 };
 use crate::error::CampaignError;
-use crate::request::{relative_error_pct, BayesianSettings, StageTemplate, Target};
+use crate::request::{
+    relative_error_pct, BayesianSettings, CandidateFactor, StageTemplate, Target,
+};
 use acquisition::{ln_p_feasible, ln_p_within, misfit, Band};
 use surrogate::{Prediction, Surrogate};
 
@@ -392,12 +394,7 @@ impl Campaign {
             .request
             .factors
             .iter()
-            .map(|f| FactorSpec {
-                name: f.name.clone(),
-                path: Some(f.path.clone()),
-                low: f.low,
-                high: f.high,
-            })
+            .map(CandidateFactor::spec)
             .collect();
         self.round = self.state().round;
         let mut batches = Vec::new();

@@ -1,17 +1,9 @@
 //! The Bayesian strategy's sentences: every decision and stop of `bayes` in plain words.
 
 use super::{Assessment, BayesStop, BayesVerification};
+use crate::campaign::wording::setting;
 use crate::campaign::{fmt_num, Summary};
 use crate::request::{BayesianSettings, Target};
-
-fn setting(names: &[String], values: &[f64]) -> String {
-    names
-        .iter()
-        .zip(values)
-        .map(|(n, v)| format!("{n} {}", fmt_num(*v)))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
 
 fn pct(p: f64) -> String {
     if p >= 0.001 {
