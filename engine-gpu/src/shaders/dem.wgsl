@@ -584,6 +584,16 @@ fn kick_spin(w: vec3<f32>, torque: vec3<f32>, moment: f32, inv_i: f32, h: f32) -
     return spin;
 }
 
+// c modulo n in [0, n). Only non-negative operands reach `%`: NVIDIA's Vulkan driver (580) gave
+// the remainder of a negative i32 as if its bits were unsigned (-1 % 9 came out 3, not -1), so a
+// grain leaving through a periodic face at 0 landed four voxels into the box.
+fn wrap_index(c: i32, n: i32) -> i32 {
+    if (c < 0) {
+        return n - 1 - (-(c + 1)) % n;
+    }
+    return c % n;
+}
+
 // Moves particle i by dx: the offset stays inside its voxel, periodic voxels wrap, a particle
 // leaving the domain is removed. Wants a rebuild when it moved half a skin since the last.
 fn drift(i: u32, dx: vec3<f32>) {
@@ -595,10 +605,10 @@ fn drift(i: u32, dx: vec3<f32>) {
     o = clamp(o, vec3<f32>(0.0), P.csize.xyz * 0.99999994);
     c = c + vec3<i32>(k);
     if ((P.dims.w & 1) != 0) {
-        c.x = ((c.x % P.dims.x) + P.dims.x) % P.dims.x;
+        c.x = wrap_index(c.x, P.dims.x);
     }
     if ((P.dims.w & 2) != 0) {
-        c.y = ((c.y % P.dims.y) + P.dims.y) % P.dims.y;
+        c.y = wrap_index(c.y, P.dims.y);
     }
     var m = cell[i].w;
     if (any(c < vec3<i32>(0)) || any(c >= P.dims.xyz)) {
