@@ -110,12 +110,10 @@
 //! `within_tolerance: false`. All draws come from `seed` and the round, and the state holds
 //! every observation, so a campaign resumed from its stored JSON decides as an uninterrupted
 //! one.
-mod bayes_report;
 mod campaign;
 mod error;
 mod report;
 mod request;
-mod svg;
 
 pub use campaign::{
     Assessment, BayesState, BayesVerification, BayesianResult, CalibratedValue, Campaign,

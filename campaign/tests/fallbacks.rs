@@ -338,3 +338,60 @@ fn an_unreachable_target_moves_the_next_region_instead_of_shrinking_it() {
         .iter()
         .any(|d| d.text.contains("moves toward it instead of shrinking")));
 }
+
+#[test]
+fn markup_in_names_and_reasons_is_escaped_exactly_once_in_the_report() {
+    const NASTY: &str = "<script>alert(\"x\")</script> & co";
+    const ESCAPED: &str = "&lt;script&gt;alert(&quot;x&quot;)&lt;/script&gt; &amp; co";
+    const FACTOR: &str = "A<&>";
+    const FACTOR_ESCAPED: &str = "A&lt;&amp;&gt;";
+    let mut r = request(json!({
+        "name": NASTY,
+        "experiment": {
+            "kind": "synthetic",
+            "preset": NASTY,
+            "spec": {"values": {"A": 0.0, "B": 0.0, "C": 0.0, "D": 0.0}}
+        },
+    }));
+    r.factors[0].name = FACTOR.to_owned();
+    let (mut campaign, batch) = Campaign::start(r).unwrap();
+    // The screening batch, its first run dead with markup in its error.
+    let mut first = true;
+    let result = run_batch_with(0, &batch, |spec, seed| {
+        if std::mem::take(&mut first) {
+            return Err(NASTY.to_owned());
+        }
+        let value = smooth(values(spec)) + noise(seed, 0.2);
+        Ok(BTreeMap::from([("angle_deg".to_owned(), value)]))
+    });
+    campaign.advance(&result).unwrap();
+    campaign.status = Status::NeedsAttention {
+        reason: NASTY.to_owned(),
+    };
+    let html = repose_campaign::report_html(&campaign, &[result], &Default::default());
+
+    // Escaped once where each appears: the title and heading, the status, the experiment's
+    // preset, the batch names and the dead run's reason in the provenance table, the factor in
+    // the tables and in the Pareto chart's SVG.
+    for needle in [
+        format!("<title>Calibration campaign: {ESCAPED}</title>"),
+        format!("<h1>Calibration campaign: {ESCAPED}</h1>"),
+        format!("<span class=\"bad\">needs attention</span>: {ESCAPED}. "),
+        format!("<b>synthetic</b> (preset {ESCAPED})"),
+        format!("<td class=\"l\">{ESCAPED}: screening</td>"),
+        format!("<td>{ESCAPED}</td></tr>"),
+        format!("<th>{FACTOR_ESCAPED}</th>"),
+        format!("font-weight=\"bold\">{FACTOR_ESCAPED}</text>"),
+    ] {
+        assert!(html.contains(&needle), "report lacks {needle:?}");
+    }
+    assert!(!html.contains("<script"), "markup got through");
+    assert!(!html.contains(FACTOR), "markup got through");
+    for twice in ["&amp;lt;", "&amp;gt;", "&amp;amp;", "&amp;quot;"] {
+        assert!(!html.contains(twice), "escaped twice: {twice}");
+    }
+    let body = html
+        .trim_start_matches("<!DOCTYPE html>")
+        .replace("<meta charset=\"utf-8\">", "");
+    roxmltree::Document::parse(&body).expect("well-formed page");
+}

@@ -14,7 +14,9 @@ pub(crate) fn header(w: f64, h: f64) -> String {
     )
 }
 
-/// XML text escaping for the few characters that matter.
+/// XML text escaping for the few characters that matter. The workspace's one hand-written
+/// escaper: these pictures are standalone SVG files from a crate without an HTML engine; the
+/// campaign report and the server's status page escape through maud.
 pub(crate) fn escape(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     for c in text.chars() {

@@ -2,36 +2,12 @@
 //! parameters, each measured hole metric against the simulated mean ([`compare`]).
 
 use repose_api::{DesignRequest, FactorSpec, ModelName, RunState, RunView};
-use serde::{Deserialize, Serialize};
 
 use super::model::set_path;
-use super::{wording, Campaign, Halt, Next, StageKind, StageResult};
+use super::outcome::{Decided, DrillMetric, DrillingOutcome};
+use super::{Campaign, Halt, Next, StageKind, StageResult};
 use crate::error::CampaignError;
 use crate::request::{relative_error_pct, DrillingValidation};
-
-/// One compared drilling metric.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DrillMetric {
-    /// Metric name.
-    pub name: String,
-    /// Measured value.
-    pub measured: f64,
-    /// Mean over the completed runs (None if no run reported it).
-    pub simulated: Option<f64>,
-    /// Relative error, percent.
-    pub relative_error_pct: Option<f64>,
-    /// Within `tolerance_pct`.
-    pub within_tolerance: bool,
-}
-
-/// Stage 6 outcome.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DrillingOutcome {
-    /// Per metric.
-    pub metrics: Vec<DrillMetric>,
-    /// All metrics within tolerance.
-    pub passed: bool,
-}
 
 /// Each measured metric against the mean of the completed runs.
 pub(crate) fn compare(drilling: &DrillingValidation, runs: &[RunView]) -> DrillingOutcome {
@@ -96,9 +72,12 @@ impl Campaign {
                 high: f.high,
             })
             .collect();
-        self.decide(
+        self.record(
             StageKind::Drilling,
-            wording::drilling_plan(&drilling, self.unverified.is_some()),
+            Decided::DrillingPlanned {
+                drilling: &drilling,
+                unverified: self.unverified.is_some(),
+            },
         );
         Ok(Next::Submit(self.issue(
             StageKind::Drilling,
@@ -117,9 +96,13 @@ impl Campaign {
     pub(super) fn after_drilling(&mut self, finished: &StageResult) -> Result<Next, Halt> {
         let drilling = self.request.drilling.as_ref().expect("drilling requested");
         let outcome = compare(drilling, &finished.runs);
-        self.decide(
+        self.record(
             StageKind::Drilling,
-            wording::drilling(&outcome, self.request.is_multi(), self.unverified.is_some()),
+            Decided::Drilled {
+                outcome: &outcome,
+                several_targets: self.request.is_multi(),
+                unverified: self.unverified.is_some(),
+            },
         );
         self.drilling = Some(outcome);
         match self.unverified.take() {

@@ -2,15 +2,18 @@
 //! [`Campaign::advance`] turns a finished batch into a decision and the next batch.
 //!
 //! One file per stage, each deciding with a typed outcome and no prose: `screening`,
-//! `steepest`, `surface` (the response surface), `optimum`, `verification`, `drilling`.
-//! `wording` is the one module that turns those outcomes (and every [`Stop`]) into the
-//! sentences of the decision log. `model` holds what all stages share: observations, coding,
+//! `steepest`, `surface` (the response surface), `optimum`, `verification`, `drilling`. The
+//! outcomes, every [`Stop`] and every `Decided` entry of the decision log are types in
+//! `outcome`, a leaf; `wording` is the one module that turns them into sentences, and this
+//! module hands a stage's `Decided` to it (`Campaign::record`). No stage imports `wording`
+//! and `wording` imports no stage. `model` holds what all stages share: observations, coding,
 //! fits and the desirability search.
 
 mod bayes;
 mod drilling;
 mod model;
 mod optimum;
+mod outcome;
 mod screening;
 mod steepest;
 mod surface;
@@ -25,13 +28,13 @@ pub use bayes::{
     Assessment, BayesState, BayesVerification, BayesianResult, ConvergencePoint, InfeasiblePoint,
     Influence, Observation, ParetoPoint, Region,
 };
-pub use drilling::{DrillMetric, DrillingOutcome};
-pub(crate) use model::{screening_fit, surface_fit, ModelRole};
-pub use optimum::{LevelSetPoint, OptimumChoice};
-pub use screening::{CarryRule, HeldFactor, ResponseEffects, ScreeningOutcome};
-pub use steepest::{PathPoint, PathState};
-pub use surface::{SurfaceFitSummary, SurfaceRound};
-pub use verification::{ResponseCheck, VerificationOutcome};
+pub(crate) use model::{screening_fit, surface_fit};
+pub use outcome::{
+    CarryRule, DrillMetric, DrillingOutcome, HeldFactor, LevelSetPoint, OptimumChoice, PathPoint,
+    PathState, ResponseCheck, ResponseEffects, ScreeningOutcome, SurfaceFitSummary, SurfaceRound,
+    VerificationOutcome,
+};
+use outcome::{Decided, Stop};
 pub(crate) use wording::{fmt_num, fmt_p};
 
 use crate::error::CampaignError;
@@ -253,43 +256,6 @@ pub struct Campaign {
     pub bayes: Option<BayesState>,
 }
 
-/// Why a campaign stops for a person to look: statistical dead ends, not misuse. The words are
-/// [`wording::stop`]'s.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) enum Stop {
-    /// The model could not be built (the design library's reason).
-    ModelUnavailable(String),
-    /// The fit failed on the completed runs.
-    FitFailed {
-        model: ModelRole,
-        runs: usize,
-        reason: String,
-    },
-    /// Every carried screening coefficient is zero.
-    NoDirection,
-    /// No steepest-path run completed.
-    NoPathRun,
-    /// A response-surface range is empty after clamping.
-    EmptySurfaceRange { factor: String },
-    /// The desirability search failed (its reason).
-    OptimumSearchFailed(String),
-    /// The desirability search returned no solution.
-    NoOptimum,
-    /// No verification run completed.
-    NoVerificationRun,
-    /// Several targets: verification failed in the last round allowed; the responses outside.
-    TargetsStillOutside {
-        rounds: u32,
-        outside: Vec<ResponseCheck>,
-    },
-    /// Verification failed in the last round allowed.
-    StillOutside {
-        rounds: u32,
-        mean: f64,
-        relative_error_pct: f64,
-    },
-}
-
 /// How a stage ends early: misuse (an error to the caller) or a stop (a state the campaign
 /// records as needing attention).
 #[derive(Debug, Clone, PartialEq)]
@@ -477,6 +443,17 @@ impl Campaign {
             round: self.round,
             text,
         });
+    }
+
+    /// Logs what a stage decided, in `wording`'s words.
+    fn record(&mut self, stage: StageKind, what: Decided) {
+        self.decide(stage, wording::decided(&what));
+    }
+
+    /// Verification gave up but the drilling validation runs anyway: remembers why, in words,
+    /// for the stop after it.
+    fn hold_unverified(&mut self, stop: &Stop) {
+        self.unverified = Some(wording::stop(stop));
     }
 
     /// Issues a stage's batch for its first experiment (the only one in the one-target form);

@@ -10,18 +10,10 @@ use repose_doe::{
 };
 use serde_json::Value;
 
-use super::{Halt, Stop, SurfaceRound};
+use super::outcome::{ModelRole, Stop, SurfaceRound};
+use super::Halt;
 use crate::error::CampaignError;
 use crate::request::{CampaignRequest, Target};
-
-/// Which model a fit was for (the stop sentence names it).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum ModelRole {
-    /// The first-order screening model.
-    Screening,
-    /// The full quadratic of a response-surface round.
-    Quadratic,
-}
 
 /// Natural factor values, responses and design rows of the completed runs.
 pub(crate) type Observations = (Vec<Vec<f64>>, Vec<f64>, Vec<u32>);

@@ -3,154 +3,59 @@
 
 use repose_api::ModelName;
 use repose_doe::Fit;
-use serde::{Deserialize, Serialize};
 
 use super::model::{candidate_factors, observations, screening_fit, target_goal};
-use super::{wording, Campaign, Halt, Next, StageKind, StageResult};
+use super::outcome::{
+    CarryRule, Decided, HeldFactor, ResponseEffects, RunCounts, ScreeningOutcome,
+};
+use super::{Campaign, Halt, Next, StageKind, StageResult};
 use crate::error::CampaignError;
 use crate::request::{CampaignRequest, CandidateFactor};
 
-/// Why factors were carried forward from screening.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "rule", rename_all = "snake_case")]
-pub enum CarryRule {
-    /// Exactly the significant factors.
-    Significant,
-    /// More were significant than `max_factors`; the largest |t| were kept.
-    TopOfSignificant {
-        /// Significant factors not carried.
-        dropped: Vec<String>,
-    },
-    /// None was significant; the largest |t| were carried anyway.
-    NoneSignificant,
-}
-
-/// A factor held constant after screening.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HeldFactor {
-    /// Factor name.
-    pub name: String,
-    /// Value written into the spec.
-    pub value: f64,
-    /// Whether the value was the user's `fixed_at` (else mid-range).
-    pub user_value: bool,
-}
-
-/// Stage 1 outcome.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ScreeningOutcome {
-    /// All candidate factors, in request order.
-    pub factors: Vec<String>,
-    /// Coded first-order coefficients.
-    pub estimates: Vec<f64>,
-    /// t values (standardized effects).
-    pub t_values: Vec<Option<f64>>,
-    /// p values.
-    pub p_values: Vec<Option<f64>>,
-    /// Intercept (prediction at the centre).
-    pub intercept: f64,
-    /// Two-sided critical t at `alpha` with the residual degrees of freedom.
-    pub t_critical: f64,
-    /// Factors with p < alpha, largest |t| first.
-    pub significant: Vec<String>,
-    /// Factors carried to the next stages, in request order.
-    pub carried: Vec<String>,
-    /// Why those.
-    pub rule: CarryRule,
-    /// The others and their values.
-    pub held: Vec<HeldFactor>,
-    /// The first target's run counts.
-    #[serde(flatten)]
-    pub counts: RunCounts,
-    /// Several targets: each response's own effects (the fields above are the first
-    /// target's; `significant`, `carried` and `rule` are over all responses).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub responses: Vec<ResponseEffects>,
-}
-
-/// One response's screening effects (several-targets form).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ResponseEffects {
-    /// `<experiment>.<metric>`.
-    pub response: String,
-    /// Coded first-order coefficients, in candidate order.
-    pub estimates: Vec<f64>,
-    /// t values.
-    pub t_values: Vec<Option<f64>>,
-    /// p values.
-    pub p_values: Vec<Option<f64>>,
-    /// Prediction at the centre.
-    pub intercept: f64,
-    /// Two-sided critical t.
-    pub t_critical: f64,
-    /// Factors with p < alpha for this response, largest |t| first.
-    pub significant: Vec<String>,
-    /// How many runs the fit rests on.
-    #[serde(flatten)]
-    pub counts: RunCounts,
-}
-
-/// How many runs a response's screening fit rests on (all 0 in campaigns stored before these
-/// fields existed).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-pub struct RunCounts {
-    /// Runs the stage issued for the response's experiment.
-    #[serde(default)]
-    pub runs: usize,
-    /// Runs that gave the response a value (the others failed, e.g. a funnel that arched).
-    #[serde(default)]
-    pub runs_used: usize,
-    /// The fit's residual degrees of freedom: what is left to judge significance with.
-    #[serde(default)]
-    pub residual_df: usize,
-}
-
-impl ResponseEffects {
-    /// Reads one response's first-order fit.
-    fn of(screened: &ScreeningFit, names: &[String], alpha: f64) -> ResponseEffects {
-        let ScreeningFit {
-            label: response,
-            fit,
-            runs,
-        } = screened;
-        let coefs: Vec<_> = names
+/// Reads one response's first-order fit.
+fn response_effects(screened: &ScreeningFit, names: &[String], alpha: f64) -> ResponseEffects {
+    let ScreeningFit {
+        label: response,
+        fit,
+        runs,
+    } = screened;
+    let coefs: Vec<_> = names
+        .iter()
+        .map(|n| {
+            fit.coefficient(n)
+                .cloned()
+                .expect("linear model has every factor")
+        })
+        .collect();
+    let t_values: Vec<Option<f64>> = coefs.iter().map(|c| c.t_value).collect();
+    let p_values: Vec<Option<f64>> = names
+        .iter()
+        .map(|n| fit.term_anova(n).and_then(|row| row.p))
+        .collect();
+    let abs_t = |i: usize| t_values[i].map_or(0.0, f64::abs);
+    let mut by_t: Vec<usize> = (0..names.len()).collect();
+    by_t.sort_by(|&a, &b| abs_t(b).total_cmp(&abs_t(a)));
+    let significant = by_t
+        .iter()
+        .filter(|&&i| p_values[i].is_some_and(|p| p < alpha))
+        .map(|&i| names[i].clone())
+        .collect();
+    ResponseEffects {
+        response: response.to_owned(),
+        estimates: coefs.iter().map(|c| c.estimate).collect(),
+        t_critical: coefs
             .iter()
-            .map(|n| {
-                fit.coefficient(n)
-                    .cloned()
-                    .expect("linear model has every factor")
-            })
-            .collect();
-        let t_values: Vec<Option<f64>> = coefs.iter().map(|c| c.t_value).collect();
-        let p_values: Vec<Option<f64>> = names
-            .iter()
-            .map(|n| fit.term_anova(n).and_then(|row| row.p))
-            .collect();
-        let abs_t = |i: usize| t_values[i].map_or(0.0, f64::abs);
-        let mut by_t: Vec<usize> = (0..names.len()).collect();
-        by_t.sort_by(|&a, &b| abs_t(b).total_cmp(&abs_t(a)));
-        let significant = by_t
-            .iter()
-            .filter(|&&i| p_values[i].is_some_and(|p| p < alpha))
-            .map(|&i| names[i].clone())
-            .collect();
-        ResponseEffects {
-            response: response.to_owned(),
-            estimates: coefs.iter().map(|c| c.estimate).collect(),
-            t_critical: coefs
-                .iter()
-                .find(|c| c.std_error > 0.0)
-                .map_or(f64::NAN, |c| (c.ci_high - c.estimate) / c.std_error),
-            intercept: fit.coefficient("Intercept").map_or(0.0, |c| c.estimate),
-            t_values,
-            p_values,
-            significant,
-            counts: RunCounts {
-                runs: *runs,
-                runs_used: fit.n_runs(),
-                residual_df: fit.residual_df(),
-            },
-        }
+            .find(|c| c.std_error > 0.0)
+            .map_or(f64::NAN, |c| (c.ci_high - c.estimate) / c.std_error),
+        intercept: fit.coefficient("Intercept").map_or(0.0, |c| c.estimate),
+        t_values,
+        p_values,
+        significant,
+        counts: RunCounts {
+            runs: *runs,
+            runs_used: fit.n_runs(),
+            residual_df: fit.residual_df(),
+        },
     }
 }
 
@@ -167,7 +72,7 @@ pub(crate) fn screen(r: &CampaignRequest, fits: &[ScreeningFit]) -> ScreeningOut
     let names: Vec<String> = r.factors.iter().map(|f| f.name.clone()).collect();
     let effects: Vec<ResponseEffects> = fits
         .iter()
-        .map(|f| ResponseEffects::of(f, &names, r.alpha))
+        .map(|f| response_effects(f, &names, r.alpha))
         .collect();
     let abs_t = |i: usize| {
         effects
@@ -241,8 +146,16 @@ impl Campaign {
         let design = r.screening.design.clone();
         let replicates = r.screening.replicates;
         let names: Vec<String> = r.factors.iter().map(|f| f.name.clone()).collect();
-        let text = wording::screening_plan(&names, &design, r.alpha, &r.experiment_keys());
-        self.decide(StageKind::Screening, text);
+        let (alpha, experiments) = (r.alpha, r.experiment_keys());
+        self.record(
+            StageKind::Screening,
+            Decided::ScreeningPlan {
+                factors: &names,
+                design: &design,
+                alpha,
+                experiments: &experiments,
+            },
+        );
         self.issue_stage(
             StageKind::Screening,
             factors,
@@ -275,13 +188,13 @@ impl Campaign {
             });
         }
         let outcome = screen(&self.request, &fits);
-        self.decide(
+        self.record(
             StageKind::Screening,
-            wording::screening(
-                &outcome,
-                self.request.alpha,
-                self.request.screening.max_factors,
-            ),
+            Decided::Screened {
+                outcome: &outcome,
+                alpha: self.request.alpha,
+                max_factors: self.request.screening.max_factors,
+            },
         );
         self.screening = Some(outcome.clone());
         let all = candidate_factors(&self.request);

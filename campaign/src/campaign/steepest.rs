@@ -7,119 +7,14 @@ use std::collections::BTreeMap;
 use repose_api::{DesignRequest, ModelName};
 use repose_doe::design::{Factor, PathClamp, PathDirection, SteepestPath};
 use repose_doe::Goal;
-use serde::{Deserialize, Serialize};
 
 use super::model::{candidate_factors, desirability, natural, observations, overall};
-use super::screening::ScreeningOutcome;
-use super::{wording, Campaign, Halt, Next, StageKind, StageResult, Stop};
+use super::outcome::{
+    CornerSide, Decided, DirectionReason, PathEnd, PathPoint, PathState, ScreeningOutcome, Stop,
+};
+use super::{Campaign, Halt, Next, StageKind, StageResult};
 use crate::error::CampaignError;
 use crate::request::{CampaignRequest, PathDirectionSetting, PathStartSetting, Target, Tolerance};
-
-/// One point of the steepest path.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PathPoint {
-    /// 1-based step number (1 = start point), as the paper's Table 5.
-    pub step: usize,
-    /// Natural values of the carried factors.
-    pub natural: Vec<f64>,
-    /// Screening model's prediction.
-    pub predicted: f64,
-    /// Mean simulated response, once run.
-    pub response: Option<f64>,
-    /// Completed runs behind `response`.
-    pub runs: usize,
-    /// Several targets: each target's mean simulated response, once run (target order).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub responses: Vec<f64>,
-    /// Several targets: the overall desirability of `responses`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub desirability: Option<f64>,
-}
-
-/// Stage 2 state.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PathState {
-    /// Carried factors.
-    pub factors: Vec<String>,
-    /// Their coded screening coefficients.
-    pub coefficients: Vec<f64>,
-    /// The factor with the largest |coefficient|, which moves one half-range per step.
-    pub base_factor: String,
-    /// Ascent or descent.
-    pub direction: PathDirection,
-    /// Start rule used.
-    pub start: PathStartSetting,
-    /// Natural step of every carried factor (the paper's Eqs. 13-15).
-    pub step_natural: Vec<f64>,
-    /// All points the path may visit (up to `max_points`, cut where every factor is stuck at
-    /// its bound).
-    pub points: Vec<PathPoint>,
-    /// Points sent out so far.
-    pub dispatched: usize,
-    /// Index of the point chosen as the response-surface centre.
-    pub centre: Option<usize>,
-    /// Whether the simulated responses bracketed (or hit) the target; with several targets,
-    /// whether the overall desirability peaked (or every response was within tolerance).
-    pub crossed: bool,
-    /// Several targets: each target's desirability goal (its band from the screening runs),
-    /// which the path's overall desirability is measured with.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub goals: Vec<Goal>,
-}
-
-/// Which corner the path starts from, relative to the target.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum CornerSide {
-    /// Both corners' predictions bracket the target; the nearer one was taken.
-    Nearer,
-    /// Only the low-response corner lies below the target.
-    Below,
-    /// Only the high-response corner lies above the target (or neither corner works).
-    Above,
-}
-
-/// Why the path goes the way it goes.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) enum DirectionReason {
-    /// The request fixed the direction.
-    Requested,
-    /// From the centre, toward the side the target is on.
-    Centre {
-        target: f64,
-        intercept: f64,
-        above: bool,
-    },
-    /// Several targets: up the gradient of the overall desirability of the screening models at
-    /// the centre of the screening region.
-    Desirability {
-        /// Predicted overall desirability at the centre.
-        centre: f64,
-    },
-    /// From a corner, chosen by the corners' predictions.
-    Corner {
-        /// Prediction at the ascent's start corner (the low-response corner).
-        low_corner: f64,
-        /// Prediction at the descent's start corner (the high-response corner).
-        high_corner: f64,
-        side: CornerSide,
-        target: f64,
-        /// Only one corner lies on the near side: the path may not reach the target.
-        maybe_unreachable: bool,
-    },
-}
-
-/// How the walk along the path ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum PathEnd {
-    /// Two consecutive responses bracket the target (point indices).
-    Crossed { from: usize, to: usize },
-    /// A response is within tolerance (and nothing crossed).
-    Hit,
-    /// Neither; the path is exhausted.
-    NeverCrossed,
-    /// Several targets: the overall desirability rose to this point and fell after it.
-    Peaked,
-}
 
 /// What the last path batch means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -487,9 +382,15 @@ impl Campaign {
     ) -> Result<Next, Halt> {
         let (state, why) = lay_out(&self.request, screening, all, goals)?;
         let s = &self.request.steepest;
-        self.decide(
+        let (round_decimals, max_points) = (s.round_decimals, s.max_points);
+        self.record(
             StageKind::Steepest,
-            wording::path_layout(&state, &why, s.round_decimals, s.max_points),
+            Decided::PathLaidOut {
+                path: &state,
+                why: &why,
+                round_decimals,
+                max_points,
+            },
         );
         self.path = Some(state);
         Ok(Next::Submit(self.dispatch_path()?))
@@ -550,15 +451,25 @@ impl Campaign {
         match verdict {
             PathVerdict::WalkOn => Ok(Next::Submit(self.dispatch_path()?)),
             PathVerdict::Centre { centre, end } => {
-                let path = self.path.as_ref().expect("path");
-                let text = if self.request.is_multi() {
-                    wording::path_end_desirability(path, &end, centre, &targets)
+                let path = self.path.clone().expect("path");
+                let decided = if self.request.is_multi() {
+                    Decided::PathEndedOverall {
+                        path: &path,
+                        end,
+                        centre,
+                        targets: &targets,
+                    }
                 } else {
-                    wording::path_end(path, &end, centre, target)
+                    Decided::PathEnded {
+                        path: &path,
+                        end,
+                        centre,
+                        target,
+                    }
                 };
+                self.record(StageKind::Steepest, decided);
                 let centre_point = path.points[centre].natural.clone();
                 let half: Vec<f64> = path.step_natural.iter().map(|s| s.abs()).collect();
-                self.decide(StageKind::Steepest, text);
                 self.start_surface(centre_point, half)
             }
         }
@@ -568,7 +479,7 @@ impl Campaign {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::campaign::screening::{CarryRule, ResponseEffects, RunCounts};
+    use crate::campaign::outcome::{CarryRule, ResponseEffects, RunCounts};
 
     fn effects(response: &str, intercept: f64, estimates: Vec<f64>) -> ResponseEffects {
         ResponseEffects {

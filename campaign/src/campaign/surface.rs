@@ -1,88 +1,16 @@
 //! Stage 3, the response surface: [`plan`] places the design around the path's centre (or the
 //! last optimum) inside the allowed ranges; [`summarise`] reads the quadratic fit.
 
-use std::collections::BTreeMap;
-
 use repose_api::{CcdVariantName, DesignRequest, ModelName};
 use repose_doe::design::{rotatable_alpha, Factor};
 use repose_doe::{Fit, Region};
-use serde::{Deserialize, Serialize};
 
 use super::model::{candidate_factors, natural, observations, surface_fit, target_goal};
-use super::optimum::OptimumChoice;
-use super::{wording, Campaign, Halt, Next, StageKind, StageResult, Stop};
-use crate::request::{SurfaceDesign, Target};
-
-/// Quadratic fit summary of one response-surface round.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SurfaceFitSummary {
-    /// Several targets: the response this fit is of.
-    #[serde(default, skip_serializing_if = "String::is_empty")]
-    pub response: String,
-    /// R².
-    pub r2: f64,
-    /// Adjusted R².
-    pub adj_r2: f64,
-    /// Predicted R².
-    pub pred_r2: Option<f64>,
-    /// Model p-value.
-    pub model_p: Option<f64>,
-    /// Lack-of-fit p-value (needs replicated points).
-    pub lack_of_fit_p: Option<f64>,
-    /// Terms with p < alpha.
-    pub significant_terms: Vec<String>,
-    /// Coded coefficients by term.
-    pub coefficients: BTreeMap<String, f64>,
-}
-
-/// Stages 3 and 4 of one round.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SurfaceRound {
-    /// 0 for the first round.
-    pub round: u32,
-    /// Carried factors with the design's low/high levels (clamped to the allowed ranges).
-    pub factors: Vec<Factor>,
-    /// Point the design is centred on (natural).
-    pub centre: Vec<f64>,
-    /// Requested half-ranges before clamping (natural).
-    pub half_ranges: Vec<f64>,
-    /// Design submitted.
-    pub design: DesignRequest,
-    /// Region searched for the optimum (coded).
-    pub region: Region,
-    /// Fit summary once the batch finished.
-    pub fit: Option<SurfaceFitSummary>,
-    /// Optimum once computed.
-    pub optimum: Option<OptimumChoice>,
-    /// Several targets: one fit per target, in target order (`fit` is the first's).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub fits: Vec<SurfaceFitSummary>,
-}
-
-/// Something the plan adjusted, said in the decision.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) enum SurfaceNote {
-    /// A half-range below 5 % of the allowed half-range was raised to it.
-    HalfRangeRaised { factor: String, from: f64, to: f64 },
-    /// Circumscribed star points would leave the allowed ranges.
-    InscribedInstead { alpha: f64 },
-}
-
-/// Which design the plan uses for the carried factors.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) enum SurfaceLayout {
-    /// One factor: a five-level line.
-    Line,
-    /// Box–Behnken (3 to 7 factors).
-    BoxBehnken { centre_points: usize },
-    /// Box–Behnken was asked for but `k` factors are carried: a face-centred CCD.
-    FaceCentredForBoxBehnken { centre_points: usize, k: usize },
-    /// The central composite design asked for.
-    CentralComposite {
-        variant: CcdVariantName,
-        centre_points: usize,
-    },
-}
+use super::outcome::{
+    Decided, FittedResponse, Stop, SurfaceFitSummary, SurfaceLayout, SurfaceNote, SurfaceRound,
+};
+use super::{Campaign, Halt, Next, StageKind, StageResult};
+use crate::request::SurfaceDesign;
 
 /// A planned response-surface round.
 #[derive(Debug, Clone, PartialEq)]
@@ -211,15 +139,6 @@ pub(crate) fn plan(
     })
 }
 
-/// One target's quadratic in a round.
-pub(crate) struct FittedResponse {
-    pub target: Target,
-    pub fit: Fit,
-    pub summary: SurfaceFitSummary,
-    /// Its desirability goal (band from the round's runs).
-    pub goal: repose_doe::Goal,
-}
-
 /// The fit's statistics the decisions and the report use.
 pub(crate) fn summarise(fit: &Fit, alpha: f64) -> SurfaceFitSummary {
     let row_p = |s: &str| fit.anova_row(s).and_then(|r| r.p);
@@ -267,9 +186,14 @@ impl Campaign {
             half,
             &self.request.response_surface.design,
         )?;
-        self.decide(
+        self.record(
             StageKind::ResponseSurface,
-            wording::surface_plan(self.round, &plan.layout, &plan.factors, &plan.notes),
+            Decided::SurfacePlanned {
+                round: self.round,
+                layout: &plan.layout,
+                factors: &plan.factors,
+                notes: &plan.notes,
+            },
         );
         self.surfaces.push(SurfaceRound {
             round: self.round,
@@ -312,9 +236,12 @@ impl Campaign {
             if multi {
                 summary.response = target.label.clone();
             }
-            self.decide(
+            self.record(
                 StageKind::ResponseSurface,
-                wording::surface_fit(&summary, self.request.alpha),
+                Decided::SurfaceFitted {
+                    summary: &summary,
+                    alpha: self.request.alpha,
+                },
             );
             let (_, y, _) = observations(finished.batch, &finished.runs, &names, &target.metric)?;
             fitted.push(FittedResponse {

@@ -2,94 +2,14 @@
 //! says whether another response-surface round follows (and with which half-ranges).
 
 use repose_api::{DesignRequest, ModelName};
-use serde::{Deserialize, Serialize};
 
 use super::model::observations;
-use super::optimum::OptimumChoice;
-use super::surface::SurfaceRound;
-use super::{wording, Campaign, Halt, Next, StageKind, StageResult, Stop};
+use super::outcome::{
+    Decided, OptimumChoice, ResponseCheck, Stop, SurfaceRound, VerificationNext,
+    VerificationOutcome,
+};
+use super::{Campaign, Halt, Next, StageKind, StageResult};
 use crate::request::{relative_error_pct, Target};
-
-/// Stage 5 outcome of one round.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct VerificationOutcome {
-    /// Response-surface round verified.
-    pub round: u32,
-    /// Factor names.
-    pub factors: Vec<String>,
-    /// Setting simulated (natural).
-    pub point: Vec<f64>,
-    /// Prediction of the quadratic model there.
-    pub predicted: f64,
-    /// Responses of the completed replicates.
-    pub responses: Vec<f64>,
-    /// Their mean.
-    pub mean: f64,
-    /// Their sample standard deviation (0 for one run).
-    pub std: f64,
-    /// `|mean - target| / |target|`, percent.
-    pub relative_error_pct: f64,
-    /// `mean - target`.
-    pub error: f64,
-    /// Within the tolerance (with several targets: every response within its own).
-    pub within_tolerance: bool,
-    /// Several targets: each response's check, in target order (the fields above are the
-    /// first target's, except `within_tolerance`).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub checks: Vec<ResponseCheck>,
-}
-
-/// One response verified against its target.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ResponseCheck {
-    /// `<experiment>.<metric>` (the metric in the one-target form).
-    pub response: String,
-    /// Measured value.
-    pub target: f64,
-    /// The quadratic's prediction at the optimum.
-    pub predicted: f64,
-    /// Responses of the completed replicates.
-    pub responses: Vec<f64>,
-    /// Their mean.
-    pub mean: f64,
-    /// Their sample standard deviation (0 for one run).
-    pub std: f64,
-    /// `|mean - target| / |target|`, percent.
-    pub relative_error_pct: f64,
-    /// Within the target's tolerance.
-    pub within_tolerance: bool,
-}
-
-/// What follows a verification.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum VerificationNext {
-    /// Within tolerance: the calibration is done (a drilling validation may follow).
-    Accept,
-    /// Outside: a further round centred at this optimum.
-    AnotherRound {
-        /// The target was reachable in the last region (half the half-ranges), else the region
-        /// moves with the same half-ranges.
-        reachable: bool,
-        /// 1-based number of the next round.
-        round: u32,
-        /// Rounds at most.
-        max_rounds: u32,
-    },
-    /// Outside, and no round is left.
-    GiveUp,
-}
-
-impl VerificationNext {
-    /// Factor of the next round's half-ranges.
-    pub fn half_range_scale(self) -> f64 {
-        match self {
-            VerificationNext::AnotherRound {
-                reachable: true, ..
-            } => 0.5,
-            _ => 1.0,
-        }
-    }
-}
 
 /// Judges the replicates at `optimum` in `round` (0-based) with `max_extra` further rounds
 /// allowed: `measured` holds each target with its completed responses (target order).
@@ -173,9 +93,13 @@ impl Campaign {
     ) -> Result<Next, Halt> {
         let specs = self.factor_specs(&round.factors);
         let replicates = self.request.verification.replicates;
-        self.decide(
+        let targets = self.request.targets();
+        self.record(
             StageKind::Verification,
-            wording::verification_plan(replicates, &self.request.targets()),
+            Decided::VerificationPlanned {
+                replicates,
+                targets: &targets,
+            },
         );
         Ok(Next::Submit(self.issue_stage(
             StageKind::Verification,
@@ -207,9 +131,15 @@ impl Campaign {
             self.round,
             r.response_surface.max_extra_rounds,
         )?;
-        let text = wording::verification(&outcome, &targets, &next);
         self.verifications.push(outcome.clone());
-        self.decide(StageKind::Verification, text);
+        self.record(
+            StageKind::Verification,
+            Decided::Verified {
+                outcome: &outcome,
+                targets: &targets,
+                next,
+            },
+        );
         match next {
             VerificationNext::Accept => {
                 if self.request.drilling.is_some() {
@@ -243,7 +173,7 @@ impl Campaign {
                 if self.request.drilling.is_some() {
                     // The validation still tells the lab how far the best setting found is
                     // from its held-back measurement; the campaign stops after it.
-                    self.unverified = Some(wording::stop(&stop));
+                    self.hold_unverified(&stop);
                     return self.start_drilling();
                 }
                 Err(stop.into())

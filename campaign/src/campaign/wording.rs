@@ -5,14 +5,12 @@
 use repose_api::DesignRequest;
 use repose_doe::design::{Factor, PathDirection};
 
-use super::drilling::DrillingOutcome;
-use super::model::ModelRole;
-use super::optimum::OptimumFound;
-use super::screening::{CarryRule, RunCounts, ScreeningOutcome};
-use super::steepest::{CornerSide, DirectionReason, PathEnd, PathState};
-use super::surface::{SurfaceFitSummary, SurfaceLayout, SurfaceNote};
-use super::verification::{VerificationNext, VerificationOutcome};
-use super::{CalibratedValue, Stop};
+use super::outcome::{
+    CarryRule, CornerSide, Decided, DirectionReason, DrillingOutcome, ModelRole, OptimumFound,
+    PathEnd, PathState, RunCounts, ScreeningOutcome, Stop, SurfaceFitSummary, SurfaceLayout,
+    SurfaceNote, VerificationNext, VerificationOutcome,
+};
+use super::CalibratedValue;
 use crate::request::{relative_error_pct, DrillingValidation, Target};
 
 /// Formats a number with 4 significant digits for decision texts.
@@ -128,13 +126,83 @@ pub(crate) fn stop(stop: &Stop) -> String {
     }
 }
 
+/// An entry of the decision log in words.
+pub(crate) fn decided(what: &Decided) -> String {
+    match *what {
+        Decided::ScreeningPlan {
+            factors,
+            design,
+            alpha,
+            experiments,
+        } => screening_plan(factors, design, alpha, experiments),
+        Decided::Screened {
+            outcome,
+            alpha,
+            max_factors,
+        } => screening(outcome, alpha, max_factors),
+        Decided::PathLaidOut {
+            path,
+            why,
+            round_decimals,
+            max_points,
+        } => path_layout(path, why, round_decimals, max_points),
+        Decided::PathEnded {
+            path,
+            end,
+            centre,
+            target,
+        } => path_end(path, &end, centre, target),
+        Decided::PathEndedOverall {
+            path,
+            end,
+            centre,
+            targets,
+        } => path_end_desirability(path, &end, centre, targets),
+        Decided::SurfacePlanned {
+            round,
+            layout,
+            factors,
+            notes,
+        } => surface_plan(round, layout, factors, notes),
+        Decided::SurfaceFitted { summary, alpha } => surface_fit(summary, alpha),
+        Decided::Optimum {
+            found,
+            factors,
+            target,
+        } => optimum(found, factors, target),
+        Decided::OptimumOverall {
+            found,
+            factors,
+            targets,
+        } => optimum_overall(found, factors, targets),
+        Decided::VerificationPlanned {
+            replicates,
+            targets,
+        } => verification_plan(replicates, targets),
+        Decided::Verified {
+            outcome,
+            targets,
+            next,
+        } => verification(outcome, targets, &next),
+        Decided::DrillingPlanned {
+            drilling,
+            unverified,
+        } => drilling_plan(drilling, unverified),
+        Decided::Drilled {
+            outcome,
+            several_targets,
+            unverified,
+        } => drilling(outcome, several_targets, unverified),
+    }
+}
+
 /// The line logged when a stop is decided.
 pub(crate) fn stopped(reason: &str) -> String {
     format!("Stopped: {reason}")
 }
 
 /// Stage 1 plan.
-pub(crate) fn screening_plan(
+fn screening_plan(
     names: &[String],
     design: &DesignRequest,
     alpha: f64,
@@ -182,7 +250,7 @@ fn runs_without_value(counts: RunCounts) -> Option<String> {
 }
 
 /// Stage 1 outcome: what was significant, what is carried and why, what is held.
-pub(crate) fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> String {
+fn screening(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> String {
     if !s.responses.is_empty() {
         return screening_overall(s, alpha, max_factors);
     }
@@ -337,7 +405,7 @@ fn screening_overall(s: &ScreeningOutcome, alpha: f64, max_factors: usize) -> St
 }
 
 /// Stage 2 plan: the direction and why, the steps, the points.
-pub(crate) fn path_layout(
+fn path_layout(
     path: &PathState,
     why: &DirectionReason,
     round_decimals: Option<u32>,
@@ -414,7 +482,7 @@ pub(crate) fn path_layout(
 }
 
 /// Stage 2 outcome: the responses along the path and the point chosen as the centre.
-pub(crate) fn path_end(path: &PathState, end: &PathEnd, centre: usize, target: f64) -> String {
+fn path_end(path: &PathState, end: &PathEnd, centre: usize, target: f64) -> String {
     let responses: Vec<String> = path.points[..path.dispatched]
         .iter()
         .filter_map(|p| {
@@ -472,7 +540,7 @@ pub(crate) fn path_end(path: &PathState, end: &PathEnd, centre: usize, target: f
 
 /// Stage 2 outcome with several targets: the overall desirability along the path and the point
 /// chosen as the centre.
-pub(crate) fn path_end_desirability(
+fn path_end_desirability(
     path: &PathState,
     end: &PathEnd,
     centre: usize,
@@ -519,7 +587,7 @@ pub(crate) fn path_end_desirability(
 }
 
 /// Stage 3 plan: the design, its levels and anything adjusted.
-pub(crate) fn surface_plan(
+fn surface_plan(
     round: u32,
     layout: &SurfaceLayout,
     factors: &[Factor],
@@ -578,7 +646,7 @@ pub(crate) fn surface_plan(
 }
 
 /// Stage 3 outcome: the quadratic fit in a sentence.
-pub(crate) fn surface_fit(summary: &SurfaceFitSummary, alpha: f64) -> String {
+fn surface_fit(summary: &SurfaceFitSummary, alpha: f64) -> String {
     let mut text = format!(
         "Quadratic model: p(model) {}, R² {}, adjusted R² {}, predicted R² {}; terms \
          significant at α = {}: {}.",
@@ -614,7 +682,7 @@ pub(crate) fn surface_fit(summary: &SurfaceFitSummary, alpha: f64) -> String {
 }
 
 /// Stage 4 outcome: where the target is met (a point, a level set, or not at all).
-pub(crate) fn optimum(found: &OptimumFound, names: &[String], target: f64) -> String {
+fn optimum(found: &OptimumFound, names: &[String], target: f64) -> String {
     let choice = &found.choice;
     let chosen = setting(names, &choice.natural);
     let extent: Vec<String> = names
@@ -666,11 +734,7 @@ pub(crate) fn optimum(found: &OptimumFound, names: &[String], target: f64) -> St
 
 /// Stage 4 with several targets: the setting of best overall desirability, every response's
 /// prediction there, and the level set.
-pub(crate) fn optimum_overall(
-    found: &OptimumFound,
-    names: &[String],
-    targets: &[Target],
-) -> String {
+fn optimum_overall(found: &OptimumFound, names: &[String], targets: &[Target]) -> String {
     let choice = &found.choice;
     let chosen = setting(names, &choice.natural);
     let predicted: Vec<String> = targets
@@ -721,7 +785,7 @@ pub(crate) fn optimum_overall(
 }
 
 /// Stage 5 plan.
-pub(crate) fn verification_plan(replicates: u32, targets: &[Target]) -> String {
+fn verification_plan(replicates: u32, targets: &[Target]) -> String {
     if let [t] = targets {
         return format!(
             "Verify with {replicates} replicate simulations at the optimum, fresh seeds; accepted \
@@ -741,11 +805,7 @@ pub(crate) fn verification_plan(replicates: u32, targets: &[Target]) -> String {
 }
 
 /// Stage 5 outcome and what follows it.
-pub(crate) fn verification(
-    v: &VerificationOutcome,
-    targets: &[Target],
-    next: &VerificationNext,
-) -> String {
+fn verification(v: &VerificationOutcome, targets: &[Target], next: &VerificationNext) -> String {
     let base = if v.checks.is_empty() {
         let (target, tolerance) = (targets[0].value, &targets[0].tolerance);
         format!(
@@ -818,7 +878,7 @@ pub(crate) fn verification(
 }
 
 /// Stage 6 plan.
-pub(crate) fn drilling_plan(d: &DrillingValidation, unverified: bool) -> String {
+fn drilling_plan(d: &DrillingValidation, unverified: bool) -> String {
     let at = if unverified {
         "the most desirable setting found, which verification did not accept (so this is not a \
          calibrated prediction: it shows how far that setting is from the measurement; the \
@@ -836,11 +896,7 @@ pub(crate) fn drilling_plan(d: &DrillingValidation, unverified: bool) -> String 
 }
 
 /// Stage 6 outcome: each metric measured against simulated.
-pub(crate) fn drilling(
-    outcome: &DrillingOutcome,
-    several_targets: bool,
-    unverified: bool,
-) -> String {
+fn drilling(outcome: &DrillingOutcome, several_targets: bool, unverified: bool) -> String {
     let lines: Vec<String> = outcome
         .metrics
         .iter()

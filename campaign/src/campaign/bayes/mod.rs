@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use super::drilling::compare;
 use super::model::set_path;
+use super::outcome::Decided;
 use super::{
     wording as chain_wording, CalibratedValue, Campaign, ResponseCheck, StageKind, StageResult,
     Status, Step, Summary,
@@ -908,9 +909,12 @@ impl Campaign {
                 reason,
             })?;
         }
-        self.decide(
+        self.record(
             StageKind::Drilling,
-            chain_wording::drilling_plan(&drilling, false),
+            Decided::DrillingPlanned {
+                drilling: &drilling,
+                unverified: false,
+            },
         );
         self.state_mut().drilling_point = Some(point.clone());
         let index = self.batches.len();
@@ -933,9 +937,13 @@ impl Campaign {
     fn bayes_after_drilling(&mut self, finished: &StageResult) -> Step {
         let drilling = self.request.drilling.as_ref().expect("drilling requested");
         let outcome = compare(drilling, &finished.runs);
-        self.decide(
+        self.record(
             StageKind::Drilling,
-            chain_wording::drilling(&outcome, self.request.is_multi(), false),
+            Decided::Drilled {
+                outcome: &outcome,
+                several_targets: self.request.is_multi(),
+                unverified: false,
+            },
         );
         self.drilling = Some(outcome);
         self.bayes_finish()

@@ -1,6 +1,10 @@
-//! Hand-written SVG charts for the report (no external assets, no dependencies).
+//! The report's SVG charts, written as strings (no external assets). Every piece of text in
+//! them (titles, axis labels, factor names) is escaped by maud ([`text`]); a finished chart is
+//! [`Markup`], so the page embeds it as it is.
 
 use std::fmt::Write;
+
+use maud::{html, Markup, PreEscaped};
 
 const W: f64 = 520.0;
 const H: f64 = 340.0;
@@ -9,12 +13,9 @@ const MR: f64 = 18.0;
 const MT: f64 = 28.0;
 const MB: f64 = 48.0;
 
-/// Escapes text for XML/HTML.
-pub(crate) fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
+/// `s` as SVG text, escaped by maud.
+fn text(s: &str) -> String {
+    html! { (s) }.into_string()
 }
 
 fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
@@ -99,7 +100,7 @@ impl Frame {
             f.out,
             r#"<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {W} {H}" width="{W}" height="{H}" font-family="sans-serif" font-size="11"><rect x="0" y="0" width="{W}" height="{H}" fill="white"/><text x="{}" y="17" text-anchor="middle" font-size="13" font-weight="bold">{}</text>"#,
             W / 2.0,
-            esc(title)
+            text(title)
         );
         let _ = write!(
             f.out,
@@ -135,10 +136,10 @@ impl Frame {
             r#"<text x="{}" y="{}" text-anchor="middle">{}</text><text x="14" y="{}" text-anchor="middle" transform="rotate(-90 14 {})">{}</text>"#,
             ML + (W - ML - MR) / 2.0,
             H - 10.0,
-            esc(xlabel),
+            text(xlabel),
             MT + (H - MT - MB) / 2.0,
             MT + (H - MT - MB) / 2.0,
-            esc(ylabel)
+            text(ylabel)
         );
         f
     }
@@ -190,7 +191,7 @@ impl Frame {
             W - MR,
             W - MR - 4.0,
             py - 4.0,
-            esc(label)
+            text(label)
         );
     }
 
@@ -202,7 +203,7 @@ impl Frame {
             H - MB,
             px + 4.0,
             MT + 12.0,
-            esc(label)
+            text(label)
         );
     }
 
@@ -210,9 +211,9 @@ impl Frame {
         self.out.push_str(s);
     }
 
-    pub(crate) fn finish(mut self) -> String {
+    pub(crate) fn finish(mut self) -> Markup {
         self.out.push_str("</svg>");
-        self.out
+        PreEscaped(self.out)
     }
 }
 
@@ -229,7 +230,7 @@ fn widen((a, b): (f64, f64), frac: f64) -> (f64, f64) {
 }
 
 /// Horizontal Pareto chart of |t| with the critical value.
-pub(crate) fn pareto(names: &[String], abs_t: &[f64], t_crit: f64) -> String {
+pub(crate) fn pareto(names: &[String], abs_t: &[f64], t_crit: f64) -> Markup {
     let mut order: Vec<usize> = (0..names.len()).collect();
     order.sort_by(|&a, &b| abs_t[b].total_cmp(&abs_t[a]));
     let xmax = abs_t.iter().copied().fold(t_crit, f64::max) * 1.1;
@@ -254,7 +255,7 @@ pub(crate) fn pareto(names: &[String], abs_t: &[f64], t_crit: f64) -> String {
             band * 0.7,
             f.px(abs_t[i]) + 4.0,
             y + band * 0.45,
-            esc(&names[i])
+            text(&names[i])
         ));
     }
     f.vline(t_crit, "#2c3e50", &format!("t crit {}", fmt_tick(t_crit)));
@@ -267,7 +268,7 @@ pub(crate) fn path_chart(
     observed: &[f64],
     predicted: &[f64],
     target: f64,
-) -> String {
+) -> Markup {
     let yr = widen(
         range(observed.iter().chain(predicted).copied().chain([target])),
         0.08,
@@ -298,7 +299,7 @@ pub(crate) fn path_chart(
 }
 
 /// Several targets: the overall desirability measured at each path step (1 = every target met).
-pub(crate) fn desirability_chart(steps: &[f64], desirability: &[f64]) -> String {
+pub(crate) fn desirability_chart(steps: &[f64], desirability: &[f64]) -> Markup {
     let mut f = Frame::new(
         "Steepest path: overall desirability per step",
         "step",
@@ -326,7 +327,7 @@ pub(crate) fn scatter(
     pts: &[(f64, f64)],
     diagonal: bool,
     zero: bool,
-) -> String {
+) -> Markup {
     let xr = widen(range(pts.iter().map(|p| p.0)), 0.08);
     let yr = widen(range(pts.iter().map(|p| p.1)), 0.08);
     let (xr, yr) = if diagonal {
@@ -358,7 +359,7 @@ pub(crate) fn contour(
     z: &dyn Fn(f64, f64) -> f64,
     target: f64,
     marks: &[(f64, f64, &str)],
-) -> String {
+) -> Markup {
     const N: usize = 40;
     let mut grid = vec![vec![0.0; N + 1]; N + 1];
     let xs: Vec<f64> = (0..=N)
@@ -442,7 +443,7 @@ pub(crate) fn contour(
             r##"<circle cx="{px:.1}" cy="{py:.1}" r="5" fill="none" stroke="#000" stroke-width="2"/><text x="{:.1}" y="{:.1}" font-weight="bold">{}</text>"##,
             px + 7.0,
             py - 6.0,
-            esc(label)
+            text(label)
         ));
     }
     f.raw(&format!(

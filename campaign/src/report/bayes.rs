@@ -14,9 +14,9 @@ const RED: &str = "#c0392b";
 const GREY: &str = "#7f8c8d";
 
 /// The section, or nothing for a campaign of the `doe` chain.
-pub(crate) fn section(c: &Campaign) -> String {
+pub(super) fn section(c: &Campaign) -> Markup {
     let Some(state) = &c.bayes else {
-        return String::new();
+        return html! {};
     };
     let result = c.summary.as_ref().and_then(|s| s.bayesian.as_deref());
     let names: Vec<String> = c.request.factors.iter().map(|f| f.name.clone()).collect();
@@ -56,7 +56,6 @@ pub(crate) fn section(c: &Campaign) -> String {
             (region_part(r, &targets, state, &names, &ranges, best.as_deref()))
         }
     }
-    .into_string()
 }
 
 /// Maps `v` in `[lo, hi]` to `[a, b]`.
