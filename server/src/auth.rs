@@ -22,9 +22,6 @@
 //! worker token reads only `GET /v1/jobs` (its own workers' jobs), and a user token reads only
 //! its own batches and campaigns (the handlers check ownership; lists are filtered).
 
-use std::fmt;
-use std::str::FromStr;
-
 use axum::extract::{FromRequestParts, Request, State};
 use axum::http::request::Parts;
 use axum::http::{header, HeaderMap};
@@ -34,49 +31,8 @@ use rand::RngCore;
 use sha2::{Digest, Sha256};
 
 use crate::error::AppError;
+pub use crate::types::{TokenRole, UnknownRole};
 use crate::AppState;
-
-/// What a token may do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum TokenRole {
-    /// A person or script using the API: submits, reads and cancels batches.
-    User,
-    /// A worker process: registers, claims and reports jobs.
-    Worker,
-}
-
-impl TokenRole {
-    /// The spelling used on the command line, in the database and in token texts.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            TokenRole::User => "user",
-            TokenRole::Worker => "worker",
-        }
-    }
-}
-
-impl fmt::Display for TokenRole {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-/// A role name that is neither `user` nor `worker`.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown token role `{0}` (expected user or worker)")]
-pub struct UnknownRole(pub String);
-
-impl FromStr for TokenRole {
-    type Err = UnknownRole;
-
-    fn from_str(text: &str) -> Result<Self, UnknownRole> {
-        match text {
-            "user" => Ok(TokenRole::User),
-            "worker" => Ok(TokenRole::Worker),
-            other => Err(UnknownRole(other.to_owned())),
-        }
-    }
-}
 
 /// Who may call an endpoint.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

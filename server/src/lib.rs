@@ -35,6 +35,7 @@ mod page;
 mod routes;
 mod submit;
 pub mod tokens;
+mod types;
 
 pub use auth::{Access, TokenRole};
 pub use db::{backup, BackupError, BackupReport};
@@ -42,6 +43,7 @@ pub use error::AppError;
 pub use orchestrate::RUNS_LOG_TARGET;
 pub use routes::{app, Endpoint, Verb, ENDPOINTS};
 pub use tokens::{create_token, list_tokens, revoke_token, TokenInfo};
+pub use types::ServeError;
 
 /// Server settings; the command line fills this from its flags.
 #[derive(Debug, Clone)]
@@ -107,34 +109,6 @@ impl Config {
             release: repose_api::ReleaseVersion::current(),
         }
     }
-}
-
-/// Why the server could not start or stopped abnormally.
-#[derive(Debug, thiserror::Error)]
-pub enum ServeError {
-    /// Opening the database failed.
-    #[error("opening the database: {0}")]
-    Database(#[from] sqlx::Error),
-    /// Applying the schema migrations failed.
-    #[error("migrating the database: {0}")]
-    Migrate(#[from] sqlx::migrate::MigrateError),
-    /// The listener failed.
-    #[error("serving HTTP: {0}")]
-    Io(#[from] std::io::Error),
-    /// A token name that cannot be used.
-    #[error("invalid token name `{name}`: {reason}")]
-    InvalidTokenName {
-        /// The name given.
-        name: String,
-        /// What is wrong with it.
-        reason: &'static str,
-    },
-    /// A token with this name exists already (names stay taken after revocation).
-    #[error("a token named `{0}` already exists")]
-    TokenNameTaken(String),
-    /// No token has this name.
-    #[error("no token named `{0}`")]
-    TokenNotFound(String),
 }
 
 /// Shared by every request handler; cheap to clone.

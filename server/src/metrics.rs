@@ -14,6 +14,8 @@ use axum::extract::{Request, State};
 use axum::middleware::Next;
 use axum::response::Response;
 
+use crate::types::Gauges;
+
 /// Upper bounds (seconds) of the claim-latency histogram buckets.
 const CLAIM_BUCKETS: [f64; 12] = [
     0.000_25, 0.000_5, 0.001, 0.002, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0,
@@ -33,28 +35,6 @@ pub struct Metrics {
     claim_sum_ns: AtomicU64,
     /// Responses by status class: index 0 = 1xx … 4 = 5xx.
     http: [AtomicU64; 5],
-}
-
-/// Database-derived gauges of one scrape.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct Gauges {
-    /// Jobs per database state (`queued`, `leased`, `completed`, `dead`, `cancelled`).
-    pub jobs: Vec<(String, i64)>,
-    /// Batches per state (`active`, `completed`, `cancelled`).
-    pub batches: Vec<(String, i64)>,
-    /// Workers whose last registration, claim or heartbeat is within one lease period.
-    pub workers_active: i64,
-    /// Workers ever registered.
-    pub workers_registered: i64,
-    /// Most recent registration, claim or heartbeat of any worker (Unix ms); `None`: no worker
-    /// ever registered.
-    pub worker_last_seen_ms: Option<i64>,
-    /// Size of the database's pages (`page_count × page_size`, without the WAL).
-    pub database_bytes: i64,
-    /// Write transactions that failed with a database error since the server started.
-    pub write_failures: u64,
-    /// Whether the last write transaction failed and none succeeded since (`/healthz` is 503).
-    pub writes_failing: bool,
 }
 
 impl Default for Metrics {

@@ -9,13 +9,14 @@ use repose_api::{
 use repose_doe::design::{
     box_behnken, central_composite, default_box_behnken_centre_points, full_factorial,
     plackett_burman, replicate, smallest_plackett_burman_runs, splitmix64, CcdVariant, Design,
-    DesignError, DesignKind, Factor,
+    DesignError, Factor,
 };
 use repose_doe::{FitError, Model, ModelKind};
 use repose_experiments::catalog::{prepare_spec, validate_spec, ExperimentError};
 use serde_json::Value;
 
 use crate::error::AppError;
+pub use crate::types::{model_label, PlannedBatch, PlannedRun};
 
 /// More runs than this in one batch is almost certainly a mistake (and a large transaction).
 pub const MAX_RUNS_PER_BATCH: usize = 10_000;
@@ -106,40 +107,6 @@ pub fn check_name_length(field: &str, value: &str) -> Result<(), AppError> {
         ));
     }
     Ok(())
-}
-
-/// One run ready to be stored.
-#[derive(Debug, Clone)]
-pub struct PlannedRun {
-    /// Position in the randomised run order (claim order).
-    pub run_index: usize,
-    /// Row of the design in standard order.
-    pub design_row: usize,
-    /// Replicate number, from 0.
-    pub replicate: usize,
-    /// Coded factor values, factor order.
-    pub coded: Vec<f64>,
-    /// Natural factor values, factor order.
-    pub natural: Vec<f64>,
-    /// DEM seed, distinct for every run of the batch.
-    pub seed: u64,
-}
-
-/// A validated submission.
-#[derive(Debug, Clone)]
-pub struct PlannedBatch {
-    /// The request as received.
-    pub request: BatchRequest,
-    /// Factors in column order.
-    pub factors: Vec<Factor>,
-    /// Which construction produced the design (the analysis needs α of a CCD).
-    pub design_kind: DesignKind,
-    /// Seed the run order and run seeds derive from.
-    pub base_seed: u64,
-    /// The complete experiment spec before factor values are written in (stored once).
-    pub template: Value,
-    /// The runs, in claim order.
-    pub runs: Vec<PlannedRun>,
 }
 
 /// The `repose-doe` model family for a wire model name; `None` for no regression.
@@ -469,16 +436,6 @@ fn check_model_is_estimable(
                 model_label(model_name)
             ),
         )),
-    }
-}
-
-/// The wire spelling of a model name.
-pub fn model_label(model: ModelName) -> &'static str {
-    match model {
-        ModelName::Linear => "linear",
-        ModelName::TwoFactorInteraction => "2fi",
-        ModelName::Quadratic => "quadratic",
-        ModelName::None => "none",
     }
 }
 

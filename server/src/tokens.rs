@@ -6,23 +6,11 @@ use std::path::Path;
 
 use crate::auth::{hash_secret, new_secret, TokenRole};
 use crate::db::Db;
+pub use crate::types::TokenInfo;
 use crate::ServeError;
 
 /// Longest accepted token name.
 pub const MAX_NAME_LEN: usize = 64;
-
-/// A token as listed (the secret itself is never stored, so never shown again).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TokenInfo {
-    /// Unique name; recorded as the owner of the batches the token submits.
-    pub name: String,
-    /// What the token may do.
-    pub role: TokenRole,
-    /// Creation time, Unix milliseconds.
-    pub created_at_ms: i64,
-    /// Revocation time, Unix milliseconds; `None` while the token is valid.
-    pub revoked_at_ms: Option<i64>,
-}
 
 /// Checks a token name: 1..=64 characters out of letters, digits, `-`, `_`, `.` and `@`.
 pub fn validate_name(name: &str) -> Result<(), ServeError> {

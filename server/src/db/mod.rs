@@ -30,10 +30,7 @@ use sqlx::sqlite::{
 use sqlx::{Row, Sqlite, SqliteConnection};
 use uuid::Uuid;
 
-use crate::auth::TokenRole;
-use crate::metrics::Gauges;
-use crate::submit::PlannedBatch;
-use crate::tokens::TokenInfo;
+use crate::types::{model_label, Gauges, PlannedBatch, ServeError, TokenInfo, TokenRole};
 
 mod analyses;
 mod backup;
@@ -274,12 +271,12 @@ pub enum ReadScope<'a> {
 
 impl Db {
     /// Opens or creates the database at `path` and applies the migrations.
-    pub async fn open(path: &Path) -> Result<Self, crate::ServeError> {
+    pub async fn open(path: &Path) -> Result<Self, ServeError> {
         Self::open_with(path, &OpenOptions::default()).await
     }
 
     /// [`Db::open`] with the server's storage settings.
-    pub async fn open_with(path: &Path, settings: &OpenOptions) -> Result<Self, crate::ServeError> {
+    pub async fn open_with(path: &Path, settings: &OpenOptions) -> Result<Self, ServeError> {
         create_private(path)?;
         let mut options = SqliteConnectOptions::new()
             .filename(path)
@@ -495,7 +492,7 @@ fn run_state_from_job(text: &str) -> Result<RunState, DbError> {
 }
 
 fn model_to_db(model: ModelName) -> &'static str {
-    crate::submit::model_label(model)
+    model_label(model)
 }
 
 fn model_from_db(text: &str) -> Result<ModelName, DbError> {
