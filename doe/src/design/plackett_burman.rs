@@ -18,7 +18,7 @@
 //!
 //! For the paper being reproduced here, Table 3 (12 runs, 6 factors) contains exactly the
 //! rows of this construction's first six columns once its 2nd and 6th columns are swapped,
-//! listed in a different run order; see `doe/tests/designs.rs`.
+//! listed in a different run order; see `doe/tests/doe/designs.rs`.
 
 use super::{Design, DesignError, DesignKind, DesignResult};
 

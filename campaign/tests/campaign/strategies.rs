@@ -2,10 +2,10 @@
 //! `formula` kind (seeded noise, a failure region): simulations to a verified calibration, the
 //! noise-free error at the calibrated point, and whether an impossible pair is reported as such.
 //! (The second function is the first pair again without its failure region, so the chain has a
-//! case with two targets it can verify.) A measurement, not a check: `cargo test -p repose-campaign --test strategies -- --ignored
+//! case with two targets it can verify.) A measurement, not a check: `cargo test -p repose-campaign --test campaign strategies:: -- --ignored
 //! --nocapture` prints the table (10 seeds per strategy and function).
 
-mod common;
+use crate::common;
 
 use common::{expand, run_batch_with};
 use repose_api::BatchRequest;

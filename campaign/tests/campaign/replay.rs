@@ -9,7 +9,7 @@
 //! the lookup table when the verification batch is issued and are labelled in the spec
 //! (`"source": "synthetic: Eq. 16 + fixed deviations"`).
 
-mod common;
+use crate::common;
 
 use common::*;
 use repose_campaign::{

@@ -3,7 +3,7 @@
 //! four factors; two coupled targets of two experiments with a failure region; a pair of
 //! targets that cannot be met together; a state stored as JSON mid-run and resumed.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 

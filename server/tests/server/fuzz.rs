@@ -2,7 +2,7 @@
 //! Whatever arrives, the answer is never a 5xx, the server never drops a connection without a
 //! reply (a panic), and it keeps answering.
 
-mod common;
+use crate::common;
 
 use std::sync::OnceLock;
 

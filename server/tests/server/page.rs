@@ -3,11 +3,9 @@
 //! the reads it links to, never the writes; wrong, revoked and cross-site sign-ins refused
 //! without a cookie and without echoing anything.
 
-mod common;
+use crate::common;
 
-#[allow(unused_imports)]
-#[path = "../../campaign/tests/common/mod.rs"]
-mod paper;
+use crate::paper;
 
 use common::{batch_request, temp_db, TestServer};
 use repose_api::Failure;

@@ -1,6 +1,6 @@
 //! Access control, request limits and path validation over real HTTP.
 
-mod common;
+use crate::common;
 
 use common::{batch_request, json_reply, temp_db, TestServer};
 use repose_server::{create_token, revoke_token, TokenRole, ENDPOINTS};

@@ -1,6 +1,6 @@
 //! `api/openapi.json` against the route table and against real responses.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeSet;
 

@@ -1,6 +1,6 @@
 //! The documented fallbacks, on synthetic responses (a closure stands in for the simulation).
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 

@@ -12,7 +12,7 @@
 //! for, from those formulas plus a small fixed deviation per point (so the fits have residual
 //! degrees of freedom), and the lookup kind answers the runs from it.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 

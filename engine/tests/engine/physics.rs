@@ -754,7 +754,7 @@ fn process_cpu_seconds() -> f64 {
     (ticks(11) + ticks(12)) / 100.0
 }
 
-/// Throughput figures (run explicitly: `cargo test --release -p repose-engine --test physics
+/// Throughput figures (run explicitly: `cargo test --release -p repose-engine --test engine physics::
 /// bench_throughput -- --ignored --nocapture`; BENCH_PARTICLES, BENCH_STEPS override).
 /// Prints wall-clock throughput (what `bench::time_steps` returns) and throughput per
 /// CPU-second of the timed steps (warm-up included: 20 steps).

@@ -1,7 +1,7 @@
 //! Worker versions: a worker of another `MAJOR.MINOR` than the server is refused with a 422
 //! naming both versions, at registration and, after a server upgrade, at its next claim.
 
-mod common;
+use crate::common;
 
 use common::{temp_db, TestServer};
 use repose_api::version::RELEASE;

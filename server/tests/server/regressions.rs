@@ -1,6 +1,6 @@
 //! Regression tests for the defects of issue #12, each against the real server over HTTP.
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};

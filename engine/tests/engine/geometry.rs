@@ -1517,7 +1517,7 @@ fn explicit_list_is_inserted_once_at_its_time() {
     assert_eq!(out[1], (Vec3::x(), 2e-3, Vec3::z()));
 }
 
-/// Broad-phase cost: `cargo test -p repose-engine --test geometry -- --ignored --nocapture`.
+/// Broad-phase cost: `cargo test -p repose-engine --test engine geometry:: -- --ignored --nocapture`.
 #[test]
 #[ignore = "timing report, not a check"]
 fn broad_phase_query_cost() {

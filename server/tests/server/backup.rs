@@ -1,7 +1,7 @@
 //! `repose_server::backup`: a copy taken mid-batch while the server runs restores to a server
 //! that finishes the batch.
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::time::Duration;

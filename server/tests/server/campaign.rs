@@ -2,11 +2,9 @@
 //! aid; responses come from the paper's Tables 3, 5 and 6, verification runs from its Eq. 16),
 //! run by an in-test worker over HTTP, with a server restart in the middle.
 
-mod common;
+use crate::common;
 
-#[allow(unused_imports)]
-#[path = "../../campaign/tests/common/mod.rs"]
-mod paper;
+use crate::paper;
 
 use common::{temp_db, TestServer};
 use paper::{eq16, paper_campaign_json};

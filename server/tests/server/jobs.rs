@@ -1,6 +1,6 @@
 //! End-to-end tests of the job server over real HTTP.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

@@ -1,6 +1,6 @@
 //! `GET /metrics`: well-formed Prometheus text whose values follow what the server did.
 
-mod common;
+use crate::common;
 
 use std::collections::{BTreeMap, HashSet};
 
