@@ -27,6 +27,7 @@ pub mod bench;
 
 pub use device::Gpu;
 pub use error::GpuError;
+pub use scene::Capacity;
 pub use world::{Counters, GpuParticles, GpuWorld};
 
 /// The backend's name in a result's provenance: `gpu:<adapter>`.
