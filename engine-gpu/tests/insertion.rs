@@ -75,14 +75,16 @@ fn resting(count: usize) -> Vec<ParticleSpec> {
         .collect()
 }
 
-/// Two leaning stacks of three grains near x = +10 mm, a few mm above the plate, thrown down:
-/// they land on the plate and on each other and topple.
+/// Two leaning stacks of three grains near x = +10 mm, a few mm above the plate, thrown down,
+/// each grain touching the one below it (overlap 1e-5 m) from the start, so the contacts must
+/// be listed at the first step: they push apart, land on the plate and topple.
 fn stacks() -> Vec<ParticleSpec> {
     let mut specs = Vec::new();
     for (s, y) in [-0.004, 0.004].into_iter().enumerate() {
         for level in 0..3 {
             let x = 0.01 + (0.3 + 0.1 * s as f64) * R * level as f64;
-            let z = R + 0.002 + level as f64 * (2.0 * R + 5e-4);
+            let dz = ((2.0 * R - 1e-5).powi(2) - ((0.3 + 0.1 * s as f64) * R).powi(2)).sqrt();
+            let z = R + 0.002 + level as f64 * dz;
             specs.push(grain(x, y, z, -0.3));
         }
     }
