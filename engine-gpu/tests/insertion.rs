@@ -301,3 +301,48 @@ fn a_run_with_insertions_is_bit_identical_when_repeated() {
         );
     }
 }
+
+/// A grain sliding on a plate that runs out of the box leaves with a tangential spring in its
+/// triangle contact history; a grain inserted into its slot right after, resting on the
+/// plate, starts without that history: it stays as still as in a world built with it.
+#[test]
+fn a_refilled_slot_starts_without_the_removed_grains_history() {
+    let Some(gpu) = common::gpu() else { return };
+    let mut base = empty(Integrator::SymplecticEuler);
+    // A second plate reaching past the box's +x face (the first stops 5 mm short of it).
+    base.add_geometry(Geometry {
+        name: "runway".into(),
+        mesh: generators::plane(0.04, 0.02, 8, 4).unwrap(),
+        motion: Motion::stationary(Pose::translation(0.03, 0.0, 0.0)),
+        material: GRAIN,
+    })
+    .unwrap();
+    let resting_z = R - 2e-7;
+    let mut slider = grain(0.027, 0.0, resting_z, 0.0);
+    slider.velocity = Vec3::new(0.5, 0.0, 0.0);
+    let capacity = Capacity {
+        particles: 1,
+        max_radius: R,
+    };
+    let mut a = GpuWorld::with_capacity(&gpu, &with(&base, &[slider]), capacity).unwrap();
+    while a.counters().unwrap().removed < 1 {
+        assert!(a.steps() < 3000, "the slider did not leave");
+        a.run(10);
+    }
+    let still = grain(0.005, 0.0, resting_z, 0.0);
+    assert_eq!(a.insert(&[still]).unwrap(), vec![0]);
+    let mut b = GpuWorld::with_capacity(&gpu, &with(&base, &[still]), capacity).unwrap();
+    a.run(50);
+    b.run(50);
+    let (pa, pb) = (a.particles().unwrap(), b.particles().unwrap());
+    println!(
+        "refilled slot: v {:?}, built with it: v {:?}",
+        pa.velocity[0], pb.velocity[0]
+    );
+    assert!(
+        pa.velocity[0] == pb.velocity[0] && pa.position[0] == pb.position[0],
+        "the refilled grain moves differently: {:?} vs {:?}",
+        pa.velocity[0],
+        pb.velocity[0]
+    );
+}
