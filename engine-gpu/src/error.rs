@@ -17,6 +17,9 @@ pub enum GpuError {
     /// The scene does not fit the backend's fixed capacities or the adapter's limits.
     #[error("the scene does not fit the GPU backend: {0}")]
     Capacity(String),
+    /// A particle to insert is not valid for the world (material, radius, place).
+    #[error("cannot insert a particle: {0}")]
+    Particle(String),
     /// A per-particle capacity overflowed during the run (the run's results are not valid).
     #[error("GPU run overflowed: {0}")]
     Overflow(String),

@@ -5,17 +5,19 @@
 //! (particles, materials and their pair table, static triangle meshes, gravity, domain,
 //! integrator) and steps it with the same contact laws — Hertz-Mindlin no-slip with tangential
 //! history, damping and the Coulomb cap; constant-directional-torque rolling friction as a
-//! brake on the new spin — in f32. What this backend does not simulate yet (cohesion, EPSD
-//! rolling, particle factories, moving geometries) is refused by name, never approximated.
+//! brake on the new spin — in f32. Grains can be inserted between runs of steps into a fixed
+//! number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this backend does
+//! not simulate yet (cohesion, EPSD rolling, particle factories as sources of the world, moving
+//! geometries) is refused by name, never approximated.
 //!
 //! **Positions** are integer voxels plus f32 offsets inside the voxel, so the vector between
 //! two nearby particles (and a particle and a triangle's first corner) is exact to the
 //! offsets' resolution anywhere in the domain ([`scene::Grid`]).
 //!
 //! **Determinism per device**: no float atomics; every particle sums its contacts in a fixed
-//! order (neighbours sorted by index, then triangles in mesh order) and each pair's force is
-//! computed in one canonical orientation by both particles, so the same run twice on the same
-//! adapter is bit-identical. Results are not bit-identical with the CPU engine (f32, another
+//! order (neighbours sorted by index, then its voxel's triangles in mesh order) and each pair's
+//! force is computed in one canonical orientation by both particles, so the same run twice
+//! (with the same insertions) on the same adapter is bit-identical. Results are not bit-identical with the CPU engine (f32, another
 //! summation order); a result names its backend.
 
 mod device;
@@ -27,6 +29,7 @@ pub mod bench;
 
 pub use device::Gpu;
 pub use error::GpuError;
+pub use scene::Capacity;
 pub use world::{Counters, GpuParticles, GpuWorld};
 
 /// The backend's name in a result's provenance: `gpu:<adapter>`.

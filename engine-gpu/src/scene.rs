@@ -7,6 +7,7 @@ use repose_engine::contact::RollingModel;
 use repose_engine::integrate::Integrator;
 use repose_engine::material::MaterialId;
 use repose_engine::math::Vec3;
+use repose_engine::particles::ParticleSpec;
 use repose_engine::world::World;
 
 use crate::GpuError;
@@ -180,6 +181,110 @@ pub(crate) struct Tri {
     pub normal: [f32; 4],
 }
 
+/// Room for particles inserted during a run, fixed when a [`crate::GpuWorld`] is created: the
+/// particle slots and the largest radius (the neighbour grid's voxel and the triangles' reach
+/// are sized by it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Capacity {
+    pub particles: usize,
+    pub max_radius: f64,
+}
+
+impl Capacity {
+    /// Exactly the world's particles (no insertion beyond reusing removed grains' slots).
+    pub fn of(world: &World) -> Capacity {
+        let p = world.particles();
+        Capacity {
+            particles: p.len(),
+            max_radius: p.radius.iter().copied().fold(0.0, f64::max),
+        }
+    }
+}
+
+/// The static triangles binned into the neighbour grid's voxels, in one array: `ncells + 1`
+/// starts, then the triangle indices (each voxel's ascending). Triangle `t` is listed in voxel
+/// `c` iff `t`'s bounding box, grown by the reach, touches `c`.
+///
+/// One voxel suffices for a grain: a grain of radius r touches a triangle only if its centre
+/// lies within r of the triangle, hence inside the triangle's bounding box grown by r; with r
+/// no larger than the reach, the voxel holding the centre touches that grown box, so the
+/// triangle is listed there. The reach is the largest radius plus 1 % (f32 rounding of the
+/// contact test) and the grain's voxel is its current one (updated every step), so no skin.
+pub(crate) fn bin_triangles(grid: &Grid, corners: &[[Vec3; 3]], reach: f64) -> Vec<u32> {
+    let ncells = grid.cells();
+    let range = |corners: &[Vec3; 3]| -> Option<[[i32; 2]; 3]> {
+        let mut r = [[0i32; 2]; 3];
+        for a in 0..3 {
+            let lo = corners.iter().map(|c| c[a]).fold(f64::INFINITY, f64::min) - reach;
+            let hi = corners
+                .iter()
+                .map(|c| c[a])
+                .fold(f64::NEG_INFINITY, f64::max)
+                + reach;
+            let lo = ((lo - grid.min[a]) / grid.voxel[a]).floor().max(0.0);
+            let hi = ((hi - grid.min[a]) / grid.voxel[a])
+                .floor()
+                .min(grid.dims[a] as f64 - 1.0);
+            if lo > hi {
+                return None; // wholly outside the grid: no grain can reach it
+            }
+            r[a] = [lo as i32, hi as i32];
+        }
+        Some(r)
+    };
+    let index = |x: i32, y: i32, z: i32| (x + grid.dims[0] * (y + grid.dims[1] * z)) as usize;
+    let ranges: Vec<_> = corners.iter().map(range).collect();
+    let mut count = vec![0u32; ncells + 1];
+    for r in ranges.iter().flatten() {
+        for z in r[2][0]..=r[2][1] {
+            for y in r[1][0]..=r[1][1] {
+                for x in r[0][0]..=r[0][1] {
+                    count[index(x, y, z) + 1] += 1;
+                }
+            }
+        }
+    }
+    for c in 0..ncells {
+        count[c + 1] += count[c];
+    }
+    let entries = count[ncells] as usize;
+    let mut out = count.clone();
+    out.resize(ncells + 1 + entries, 0);
+    let mut next = count;
+    // Triangles in ascending order: each voxel's list is ascending.
+    for (t, r) in ranges.iter().enumerate() {
+        let Some(r) = r else { continue };
+        for z in r[2][0]..=r[2][1] {
+            for y in r[1][0]..=r[1][1] {
+                for x in r[0][0]..=r[0][1] {
+                    let c = index(x, y, z);
+                    out[ncells + 1 + next[c] as usize] = t as u32;
+                    next[c] += 1;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// One particle's GPU record: voxel and material, offset and radius, velocity and mass, spin
+/// and inverse inertia.
+pub(crate) type Record = ([i32; 4], [f32; 4], [f32; 4], [f32; 4]);
+
+/// `spec`'s [`Record`], mass and inertia as the CPU engine sets them (a solid sphere of the
+/// material's density).
+pub(crate) fn particle_record(grid: &Grid, spec: &ParticleSpec, density: f64) -> Record {
+    let mass = density * 4.0 / 3.0 * std::f64::consts::PI * spec.radius.powi(3);
+    let inverse_inertia = 1.0 / (0.4 * mass * spec.radius * spec.radius);
+    let (c, o) = grid.to_voxel(spec.position);
+    (
+        [c[0], c[1], c[2], spec.material.0 as i32],
+        [o[0], o[1], o[2], spec.radius as f32],
+        v4(spec.velocity, mass as f32),
+        v4(spec.angular_velocity, inverse_inertia as f32),
+    )
+}
+
 /// Everything uploaded at the start of a run.
 #[derive(Debug, Clone)]
 pub(crate) struct Scene {
@@ -191,7 +296,10 @@ pub(crate) struct Scene {
     pub vel: Vec<[f32; 4]>,
     pub omg: Vec<[f32; 4]>,
     pub tris: Vec<Tri>,
+    /// [`bin_triangles`]' voxel lists.
+    pub tri_grid: Vec<u32>,
     pub pairs: Vec<PairC>,
+    /// The world's particles' radii (not the empty slots').
     pub radius: Vec<f64>,
 }
 
@@ -200,9 +308,10 @@ fn v4(v: Vec3, w: f32) -> [f32; 4] {
 }
 
 impl Scene {
-    /// The GPU form of `world` now. Refuses what this backend does not simulate yet
-    /// (cohesion, EPSD rolling, particle sources, moving geometries), naming it.
-    pub fn from_world(world: &World) -> Result<Scene, GpuError> {
+    /// The GPU form of `world` now, with room for `capacity` (slots past the world's
+    /// particles are empty). Refuses what this backend does not simulate yet (cohesion, EPSD
+    /// rolling, particle sources, moving geometries), naming it.
+    pub fn from_world(world: &World, capacity: Capacity) -> Result<Scene, GpuError> {
         let config = world.config();
         let materials = world.materials();
         if materials.any_cohesion() {
@@ -228,11 +337,29 @@ impl Scene {
         }
         let p = world.particles();
         let n = p.len();
-        if n == 0 {
-            return Err(GpuError::Capacity("the world has no particles".into()));
+        let world_max = Capacity::of(world).max_radius;
+        if capacity.particles == 0 {
+            return Err(GpuError::Capacity(
+                "the world has no particles and no room for any".into(),
+            ));
         }
-        let max_radius = p.radius.iter().copied().fold(0.0, f64::max);
-        let min_radius = p.radius.iter().copied().fold(f64::INFINITY, f64::min);
+        if capacity.particles < n {
+            return Err(GpuError::Capacity(format!(
+                "the world has {n} particles, more than the capacity of {}",
+                capacity.particles
+            )));
+        }
+        if !(capacity.max_radius > 0.0 && capacity.max_radius.is_finite())
+            || capacity.max_radius < world_max
+        {
+            return Err(GpuError::Capacity(format!(
+                "the capacity's largest radius {} m is not positive or below the world's \
+                 largest, {world_max} m",
+                capacity.max_radius
+            )));
+        }
+        let max_radius = capacity.max_radius;
+        let min_radius = p.radius.iter().copied().fold(max_radius, f64::min);
         // One fixed skin (the CPU engine adapts its own per particle): half the CPU's widest,
         // so a settled bed lists few pairs and a pour at ~1 m/s rebuilds every ~10 steps.
         let skin = config.skin_fraction_max * max_radius;
@@ -259,6 +386,7 @@ impl Scene {
             }
         }
         let mut tris = Vec::new();
+        let mut corners = Vec::new();
         for g in world.geometries() {
             let pose = g.motion.pose_at(world.time());
             for (t, normal) in g.mesh.normals().iter().enumerate() {
@@ -266,6 +394,7 @@ impl Scene {
                     .mesh
                     .corners(t)
                     .map(|v| pose.transform_point(&v.into()).coords);
+                corners.push([a, b, c]);
                 let (cell, v0) = grid.to_voxel_unwrapped(a);
                 tris.push(Tri {
                     cell: [cell[0], cell[1], cell[2], g.material.0 as i32],
@@ -276,25 +405,27 @@ impl Scene {
                 });
             }
         }
-        let mut cell = Vec::with_capacity(n);
-        let mut off = Vec::with_capacity(n);
+        let tri_grid = bin_triangles(&grid, &corners, 1.01 * max_radius);
+        let slots = capacity.particles;
+        // Empty slots: material -1 (dead), the rest zero.
+        let mut cell = vec![[0, 0, 0, -1]; slots];
+        let mut off = vec![[0.0; 4]; slots];
+        let mut vel = vec![[0.0; 4]; slots];
+        let mut omg = vec![[0.0; 4]; slots];
         for k in 0..n {
             let (c, o) = grid.to_voxel(p.position[k]);
-            cell.push([c[0], c[1], c[2], p.material[k].0 as i32]);
-            off.push([o[0], o[1], o[2], p.radius[k] as f32]);
+            cell[k] = [c[0], c[1], c[2], p.material[k].0 as i32];
+            off[k] = [o[0], o[1], o[2], p.radius[k] as f32];
+            vel[k] = v4(p.velocity[k], p.mass[k] as f32);
+            omg[k] = v4(p.angular_velocity[k], p.inverse_inertia[k] as f32);
         }
-        let vel = (0..n)
-            .map(|k| v4(p.velocity[k], p.mass[k] as f32))
-            .collect();
-        let omg = (0..n)
-            .map(|k| v4(p.angular_velocity[k], p.inverse_inertia[k] as f32))
-            .collect();
+
         let dt = config.time_step;
         let smooth_cos = repose_engine::mesh::DEFAULT_SMOOTH_ANGLE_DEG
             .to_radians()
             .cos();
         let params = Params {
-            n: n as u32,
+            n: slots as u32,
             ncells: grid.cells() as u32,
             nmat: nmat as u32,
             ntris: tris.len() as u32,
@@ -318,6 +449,7 @@ impl Scene {
             vel,
             omg,
             tris,
+            tri_grid,
             pairs,
             radius: p.radius.clone(),
         })
@@ -381,6 +513,72 @@ mod tests {
                 .iter()
                 .zip(g.voxel.iter())
                 .all(|(&o, &v)| o >= 0.0 && (o as f64) < v));
+        }
+    }
+
+    /// Every point within the reach of a triangle (a point of the triangle plus an offset no
+    /// longer than the reach) lies in a voxel that lists the triangle; each voxel's list is
+    /// ascending and a triangle outside the grid is in none.
+    #[test]
+    fn a_voxel_lists_every_triangle_within_reach_of_its_points() {
+        let g = grid(false);
+        let reach = 1.0e-3;
+        let corners = vec![
+            // flat, small; slanted across many voxels; a sliver; one wholly outside the grid
+            [
+                Vec3::new(0.1, 0.1, 0.05),
+                Vec3::new(0.104, 0.1, 0.05),
+                Vec3::new(0.1, 0.103, 0.05),
+            ],
+            [
+                Vec3::new(0.02, 0.03, 0.01),
+                Vec3::new(0.05, 0.02, 0.04),
+                Vec3::new(0.03, 0.06, 0.02),
+            ],
+            [
+                Vec3::new(0.2, 0.2, 0.2),
+                Vec3::new(0.2101, 0.2, 0.2),
+                Vec3::new(0.21, 0.2, 0.2001),
+            ],
+            [
+                Vec3::new(0.5, 0.5, 0.5),
+                Vec3::new(0.6, 0.5, 0.5),
+                Vec3::new(0.5, 0.6, 0.5),
+            ],
+        ];
+        let lists = bin_triangles(&g, &corners, reach);
+        let ncells = g.cells();
+        let listed = |c: [i32; 3]| -> &[u32] {
+            let v = (c[0] + g.dims[0] * (c[1] + g.dims[1] * c[2])) as usize;
+            &lists[ncells + 1 + lists[v] as usize..ncells + 1 + lists[v + 1] as usize]
+        };
+        for v in 0..ncells {
+            let l = &lists[ncells + 1 + lists[v] as usize..ncells + 1 + lists[v + 1] as usize];
+            assert!(l.windows(2).all(|w| w[0] < w[1]), "voxel {v}: {l:?}");
+            assert!(!l.contains(&3), "the triangle outside the grid is listed");
+        }
+        let mut state = 12345u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (t, [a, b, c]) in corners.iter().take(3).enumerate() {
+            for _ in 0..2000 {
+                let (mut u, mut v) = (uniform(), uniform());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let on = a + (b - a) * u + (c - a) * v;
+                let dir = Vec3::new(uniform() - 0.5, uniform() - 0.5, uniform() - 0.5);
+                let p = on + dir.normalize() * (reach * uniform().sqrt());
+                let (cell, _) = g.to_voxel(p);
+                assert!(
+                    listed(cell).contains(&(t as u32)),
+                    "triangle {t} not listed at {p:?} (voxel {cell:?})"
+                );
+            }
         }
     }
 

@@ -6,8 +6,11 @@ use repose_engine::math::Vec3;
 use repose_engine::world::World;
 use wgpu::util::DeviceExt;
 
+use repose_engine::particles::ParticleSpec;
+
 use crate::scene::{
-    Grid, Params, Scene, Voxel, BIN_CAPACITY, NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
+    particle_record, Capacity, Grid, Params, Record, Scene, Voxel, BIN_CAPACITY,
+    NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
 };
 use crate::{Gpu, GpuError};
 
@@ -47,20 +50,23 @@ struct Buffers {
     vel: wgpu::Buffer,
     omg: wgpu::Buffer,
     trq: wgpu::Buffer,
+    disp: wgpu::Buffer,
     nbn: wgpu::Buffer,
     nbr: wgpu::Buffer,
     ctl: wgpu::Buffer,
     bytes: u64,
 }
 
-/// The particles as read back from the GPU, in the CPU world's order and units.
+/// The particles as read back from the GPU, by slot: the CPU world's particles first, in its
+/// order, then the inserted ones in their slots ([`GpuWorld::insert`]); in the CPU world's
+/// units.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpuParticles {
     pub position: Vec<Vec3>,
     pub velocity: Vec<Vec3>,
     pub angular_velocity: Vec<Vec3>,
     pub radius: Vec<f64>,
-    /// Removed (left the domain): no longer simulated.
+    /// An empty slot: its grain was removed (left the domain) and is no longer simulated.
     pub removed: Vec<bool>,
     /// Particle-particle contacts of each particle at the last force evaluation.
     pub contacts: Vec<u32>,
@@ -74,14 +80,22 @@ pub struct Counters {
 }
 
 /// A world on the GPU, built from a CPU [`World`] (its particles, materials, static
-/// geometries and configuration) and stepped there. Deterministic on one adapter: the same
-/// world and steps give the same bits.
+/// geometries and configuration) and stepped there, with a fixed number of particle slots
+/// that [`GpuWorld::insert`] fills during the run. Deterministic on one adapter: the same
+/// world, steps and insertions give the same bits.
 pub struct GpuWorld {
     device: wgpu::Device,
     queue: wgpu::Queue,
     grid: Grid,
     integrator: Integrator,
+    /// Particle slots (the buffers' length).
+    capacity: usize,
+    /// The largest radius a particle may have (the grid and the triangles' reach).
+    max_radius: f64,
+    /// Slots ever filled: the kernels run over these (every slot past them is empty).
     n: usize,
+    /// Each material's particle density, kg/m³.
+    densities: Vec<f64>,
     /// Neighbour grid cells.
     cells: usize,
     radius: Vec<f64>,
@@ -90,6 +104,8 @@ pub struct GpuWorld {
     main_group: wgpu::BindGroup,
     step_params: wgpu::BindGroup,
     start_params: wgpu::BindGroup,
+    /// Removed grains' slots refilled by [`GpuWorld::insert`].
+    refilled: u64,
     time: f64,
     time_step: f64,
     steps: u64,
@@ -101,31 +117,48 @@ impl std::fmt::Debug for GpuWorld {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GpuWorld")
             .field("adapter", &self.adapter)
-            .field("particles", &self.n)
+            .field("slots", &self.n)
+            .field("capacity", &self.capacity)
             .field("time", &self.time)
             .field("steps", &self.steps)
             .finish_non_exhaustive()
     }
 }
 
+/// Workgroups for `count` threads (at least one: an empty world's kernels run as no-ops).
 fn groups(count: usize) -> u32 {
-    count.div_ceil(WORKGROUP as usize) as u32
+    count.div_ceil(WORKGROUP as usize).max(1) as u32
 }
 
 impl GpuWorld {
-    /// Uploads `world` (at its present time) to `gpu`.
+    /// Uploads `world` (at its present time) to `gpu`, with room for exactly its particles
+    /// (removed grains' slots can be refilled).
     pub fn new(gpu: &Gpu, world: &World) -> Result<GpuWorld, GpuError> {
-        let scene = Scene::from_world(world)?;
+        GpuWorld::with_capacity(gpu, world, Capacity::of(world))
+    }
+
+    /// Uploads `world` (at its present time) to `gpu` with `capacity.particles` slots, its
+    /// particles in the first ones; grains up to `capacity.max_radius` can be inserted into
+    /// the others during the run ([`GpuWorld::insert`]). The world may have no particles.
+    pub fn with_capacity(
+        gpu: &Gpu,
+        world: &World,
+        capacity: Capacity,
+    ) -> Result<GpuWorld, GpuError> {
+        let scene = Scene::from_world(world, capacity)?;
         let n = scene.cell.len();
         let limits = gpu.limits();
-        let largest =
-            (n * NEIGHBOUR_CAPACITY * 16).max(scene.grid.cells() * BIN_CAPACITY * 4) as u64;
+        let largest = (n * NEIGHBOUR_CAPACITY * 16)
+            .max(scene.grid.cells() * BIN_CAPACITY * 4)
+            .max(scene.tri_grid.len() * 4) as u64;
         if largest > limits.max_storage_buffer_binding_size as u64
             || largest > limits.max_buffer_size
         {
             return Err(GpuError::Capacity(format!(
-                "{n} particles need a {largest}-byte buffer; the adapter allows {} bytes \
-                 per binding",
+                "{n} particles, {} grid cells and {} binned triangle entries need a \
+                 {largest}-byte buffer; the adapter allows {} bytes per binding",
+                scene.grid.cells(),
+                scene.tri_grid.len() - scene.grid.cells() - 1,
                 limits.max_storage_buffer_binding_size
             )));
         }
@@ -163,6 +196,7 @@ impl GpuWorld {
             bytemuck::cast_slice(&scene.tris).to_vec()
         };
         let tris = init("tris", &tris_data);
+        let tri_grid = init("tri grid", bytemuck::cast_slice(&scene.tri_grid));
         let pc = init("pairs", bytemuck::cast_slice(&scene.pairs));
         let mut zeroed = |label: &str, size: u64| {
             bytes += size;
@@ -202,7 +236,7 @@ impl GpuWorld {
         };
         let main_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("main"),
-            entries: &(0..19).map(storage_entry).collect::<Vec<_>>(),
+            entries: &(0..20).map(storage_entry).collect::<Vec<_>>(),
         });
         let params_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("params"),
@@ -217,9 +251,9 @@ impl GpuWorld {
                 count: None,
             }],
         });
-        let all: [&wgpu::Buffer; 19] = [
+        let all: [&wgpu::Buffer; 20] = [
             &cell, &off, &vel, &omg, &frc, &trq, &disp, &nbr, &nbn, &spr, &nbr2, &nbn2, &spr2,
-            &bins, &binn, &walls, &tris, &pc, &ctl,
+            &bins, &binn, &walls, &tris, &pc, &ctl, &tri_grid,
         ];
         let main_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("main"),
@@ -296,7 +330,17 @@ impl GpuWorld {
             queue,
             grid: scene.grid,
             integrator: scene.integrator,
-            n,
+            capacity: n,
+            max_radius: capacity.max_radius,
+            n: world.particles().len(),
+            densities: (0..world.materials().len())
+                .map(|m| {
+                    world
+                        .materials()
+                        .material(repose_engine::material::MaterialId(m as u16))
+                        .density
+                })
+                .collect(),
             cells: scene.grid.cells(),
             radius: scene.radius,
             pipelines,
@@ -306,6 +350,7 @@ impl GpuWorld {
                 vel,
                 omg,
                 trq,
+                disp,
                 nbn,
                 nbr,
                 ctl,
@@ -316,6 +361,7 @@ impl GpuWorld {
             start_params,
             time: world.time(),
             time_step: world.config().time_step,
+            refilled: 0,
             steps: 0,
             forces_current: false,
             adapter: gpu.name().to_owned(),
@@ -343,12 +389,115 @@ impl GpuWorld {
         self.steps
     }
 
+    /// Slots filled so far (the world's particles and the inserted ones, removed grains
+    /// included): the read-backs ([`GpuWorld::particles`]) hold this many.
     pub fn len(&self) -> usize {
         self.n
     }
 
     pub fn is_empty(&self) -> bool {
         self.n == 0
+    }
+
+    /// Particle slots, fixed at creation.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Inserts `specs` into free slots (removed grains' slots first, lowest first, then unused
+    /// ones in order) before the next step; returns their slots, in `specs`' order. Mass and
+    /// inertia are the CPU engine's (a solid sphere of the material's density); the grains start
+    /// without contact history and the next step rebuilds the neighbour lists (with velocity
+    /// Verlet it first evaluates the forces, as the CPU engine does after an insertion). Reads
+    /// back the control words, and the particle records when grains were removed.
+    ///
+    /// Errors: a spec with an unknown material, a radius not in (0, the capacity's largest], a
+    /// centre outside the domain ([`GpuError::Particle`]); more grains than free slots
+    /// ([`GpuError::Capacity`]). Nothing is inserted on error.
+    pub fn insert(&mut self, specs: &[ParticleSpec]) -> Result<Vec<usize>, GpuError> {
+        let mut records = Vec::with_capacity(specs.len());
+        for (k, spec) in specs.iter().enumerate() {
+            let m = spec.material.0 as usize;
+            let Some(&density) = self.densities.get(m) else {
+                return Err(GpuError::Particle(format!(
+                    "particle {k}: material {m} is not one of the world's {}",
+                    self.densities.len()
+                )));
+            };
+            if !(spec.radius > 0.0 && spec.radius <= self.max_radius) {
+                return Err(GpuError::Particle(format!(
+                    "particle {k}: radius {} m is not in (0, {}] m (the capacity's largest)",
+                    spec.radius, self.max_radius
+                )));
+            }
+            let finite = |v: Vec3| v.iter().all(|c| c.is_finite());
+            if !(finite(spec.position) && finite(spec.velocity) && finite(spec.angular_velocity)) {
+                return Err(GpuError::Particle(format!(
+                    "particle {k}: a position, velocity or spin that is not finite"
+                )));
+            }
+            let record = particle_record(&self.grid, spec, density);
+            let c = record.0;
+            if (0..3).any(|a| c[a] < 0 || c[a] >= self.grid.dims[a]) {
+                return Err(GpuError::Particle(format!(
+                    "particle {k}: centre {:?} is outside the domain",
+                    spec.position
+                )));
+            }
+            records.push(record);
+        }
+        if records.is_empty() {
+            return Ok(Vec::new());
+        }
+        // Slots of removed grains not refilled yet, lowest first, then the unused ones.
+        let removed = self.counters()?.removed;
+        let mut slots = Vec::with_capacity(records.len());
+        if removed > self.refilled {
+            let cell: Vec<[i32; 4]> = self.read(&self.buffers.cell)?;
+            slots.extend((0..self.n).filter(|&k| cell[k][3] < 0).take(records.len()));
+        }
+        let reused = slots.len();
+        slots.extend(self.n..(self.n + records.len() - reused).min(self.capacity));
+        if slots.len() < records.len() {
+            return Err(GpuError::Capacity(format!(
+                "inserting {} particles: only {} of the {} particle slots (the capacity) are \
+                 free",
+                records.len(),
+                slots.len(),
+                self.capacity
+            )));
+        }
+        // One write per buffer and run of consecutive slots.
+        let mut start = 0;
+        while start < slots.len() {
+            let mut end = start + 1;
+            while end < slots.len() && slots[end] == slots[end - 1] + 1 {
+                end += 1;
+            }
+            let run = &records[start..end];
+            let at = slots[start] as u64 * 16;
+            let write = |buffer: &wgpu::Buffer, data: &[u8]| {
+                self.queue.write_buffer(buffer, at, data);
+            };
+            let column = |f: fn(&Record) -> [u8; 16]| run.iter().flat_map(f).collect::<Vec<u8>>();
+            write(&self.buffers.cell, &column(|r| bytemuck::cast(r.0)));
+            write(&self.buffers.off, &column(|r| bytemuck::cast(r.1)));
+            write(&self.buffers.vel, &column(|r| bytemuck::cast(r.2)));
+            write(&self.buffers.omg, &column(|r| bytemuck::cast(r.3)));
+            // Inserted since the build: no history carried into the new lists.
+            let fresh: Vec<[f32; 4]> = vec![[0.0, 0.0, 0.0, 1.0]; run.len()];
+            write(&self.buffers.disp, bytemuck::cast_slice(&fresh));
+            start = end;
+        }
+        self.refilled += reused as u64;
+        self.n = self.n.max(slots.iter().max().map_or(0, |&k| k + 1));
+        self.radius.resize(self.n, 0.0);
+        for (&k, spec) in slots.iter().zip(specs) {
+            self.radius[k] = spec.radius;
+        }
+        self.write_control(ctl::REBUILD, 1);
+        self.forces_current = false;
+        Ok(slots)
     }
 
     /// Bytes of device memory the world's buffers take.
@@ -542,14 +691,18 @@ impl GpuWorld {
         Ok(counts.iter().map(|&c| c as usize).sum::<usize>() / 2)
     }
 
-    /// Each particle's neighbour list (partner indices, ascending) as of the last rebuild.
+    /// Each particle's neighbour list (partner slots, ascending) as of the last rebuild.
     pub fn neighbour_lists(&self) -> Result<Vec<Vec<u32>>, GpuError> {
         let counts: Vec<u32> = self.read(&self.buffers.nbn)?;
         let slots: Vec<u32> = self.read(&self.buffers.nbr)?;
-        Ok(counts
+        Ok(counts[..self.n]
             .iter()
             .enumerate()
-            .map(|(i, &c)| (0..c as usize).map(|k| slots[k * self.n + i]).collect())
+            .map(|(i, &c)| {
+                (0..c as usize)
+                    .map(|k| slots[k * self.capacity + i])
+                    .collect()
+            })
             .collect())
     }
 
@@ -558,29 +711,30 @@ impl GpuWorld {
         &self.grid
     }
 
-    /// The particles' voxels and offsets (as the shader holds them).
+    /// The particles' voxels and offsets (as the shader holds them), by slot.
     pub fn voxels(&self) -> Result<Vec<Voxel>, GpuError> {
         let cell: Vec<[i32; 4]> = self.read(&self.buffers.cell)?;
         let off: Vec<[f32; 4]> = self.read(&self.buffers.off)?;
-        Ok(cell
+        Ok(cell[..self.n]
             .iter()
             .zip(&off)
             .map(|(c, o)| ([c[0], c[1], c[2]], [o[0], o[1], o[2]]))
             .collect())
     }
 
-    /// The particles now.
+    /// The particles now, by slot (the first [`GpuWorld::len`] slots).
     pub fn particles(&self) -> Result<GpuParticles, GpuError> {
-        let cell: Vec<[i32; 4]> = self.read(&self.buffers.cell)?;
-        let off: Vec<[f32; 4]> = self.read(&self.buffers.off)?;
-        let vel: Vec<[f32; 4]> = self.read(&self.buffers.vel)?;
-        let omg: Vec<[f32; 4]> = self.read(&self.buffers.omg)?;
-        let trq: Vec<[f32; 4]> = self.read(&self.buffers.trq)?;
+        let n = self.n;
+        let cell = &self.read::<[i32; 4]>(&self.buffers.cell)?[..n];
+        let off = &self.read::<[f32; 4]>(&self.buffers.off)?[..n];
+        let vel = &self.read::<[f32; 4]>(&self.buffers.vel)?[..n];
+        let omg = &self.read::<[f32; 4]>(&self.buffers.omg)?[..n];
+        let trq = &self.read::<[f32; 4]>(&self.buffers.trq)?[..n];
         let v3 = |v: &[f32; 4]| Vec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
         Ok(GpuParticles {
             position: cell
                 .iter()
-                .zip(&off)
+                .zip(off)
                 .map(|(c, o)| {
                     self.grid
                         .to_position([c[0], c[1], c[2]], [o[0], o[1], o[2]])

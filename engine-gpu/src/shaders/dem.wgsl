@@ -58,7 +58,8 @@ struct Tri {
 @group(0) @binding(3) var<storage, read_write> omg: array<vec4<f32>>;    // w: 1 / inertia
 @group(0) @binding(4) var<storage, read_write> frc: array<vec4<f32>>;    // w: CDT moment
 @group(0) @binding(5) var<storage, read_write> trq: array<vec4<f32>>;    // w: contacts
-@group(0) @binding(6) var<storage, read_write> disp: array<vec4<f32>>;   // since the build
+// xyz: displacement since the build; w: 1 for a grain inserted since the build
+@group(0) @binding(6) var<storage, read_write> disp: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read_write> nbr: array<u32>;
 @group(0) @binding(8) var<storage, read_write> nbn: array<u32>;
 @group(0) @binding(9) var<storage, read_write> spr: array<vec4<f32>>;
@@ -73,6 +74,11 @@ struct Tri {
 // 0 rebuild wanted, 1 rebuilds, 2 neighbour overflow, 3 bin overflow, 4 removed,
 // 5 fastest speed (f32 bits, max), 6 triangle contact overflow, 7 rebuilding this step
 @group(0) @binding(18) var<storage, read_write> ctl: array<atomic<u32>>;
+// The static triangles binned into the grid's voxels: ncells + 1 starts, then the triangle
+// indices (each voxel's ascending). A triangle is listed in every voxel its bounding box, grown
+// by the largest radius (and 1 %), touches: a grain's own voxel lists every triangle it can
+// touch (its centre is within its radius of the triangle, so inside that grown box).
+@group(0) @binding(19) var<storage, read_write> tgrid: array<u32>;
 @group(1) @binding(0) var<uniform> P: Params;
 
 // Slot k of particle i's neighbour list (and springs, wall histories): column-major, so the
@@ -267,7 +273,6 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (!rebuilding() || i >= P.n) {
         return;
     }
-    disp[i] = vec4<f32>(0.0);
     var list: array<u32, CAP>;
     var count = 0u;
     if (alive(i)) {
@@ -325,8 +330,16 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         list[b] = v;
     }
-    // Carry the springs of pairs that were already listed (both lists are sorted).
-    let old_count = nbn[i];
+    // Carry the springs of pairs that were already listed (both lists are sorted). A grain
+    // inserted since the last build starts without history: its slot's old list and the
+    // springs others hold for the slot belonged to a removed grain.
+    let fresh = disp[i].w != 0.0;
+    if (fresh) {
+        for (var h = 0u; h < 2u * WCAP; h++) {
+            walls[slot(i, h)] = vec4<f32>(0.0);
+        }
+    }
+    let old_count = select(nbn[i], 0u, fresh);
     var k = 0u;
     for (var a = 0u; a < count; a++) {
         let j = list[a];
@@ -334,7 +347,7 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
             k++;
         }
         var s = vec4<f32>(0.0);
-        if (k < old_count && nbr[slot(i, k)] == j) {
+        if (k < old_count && nbr[slot(i, k)] == j && disp[j].w == 0.0) {
             s = spr[slot(i, k)];
         }
         nbr2[slot(i, a)] = j;
@@ -349,6 +362,7 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (!rebuilding() || i >= P.n) {
         return;
     }
+    disp[i] = vec4<f32>(0.0);
     let count = nbn2[i];
     nbn[i] = count;
     for (var a = 0u; a < count; a++) {
@@ -452,15 +466,19 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
     }
 
-    // Triangles, in mesh order; a point found twice (a shared edge or corner) counts once,
-    // and of contacts whose normals are within the distinct angle the deepest is kept.
+    // The triangles listed in the grain's voxel, in mesh order; a point found twice (a shared
+    // edge or corner) counts once, and of contacts whose normals are within the distinct angle
+    // the deepest is kept.
     var cand: array<TriContact, WCAND>;
     var nc = 0u;
     let ci = cell[i].xyz;
     let oi = off[i].xyz;
     let tol = P.misc2.x;
-    for (var t = 0u; t < P.ntris; t++) {
-        let tri = tris[t];
+    let voxel = cell_index(ci);
+    let listed = P.ncells + 1u;
+    let last = tgrid[voxel + 1u];
+    for (var e = tgrid[voxel]; e < last; e++) {
+        let tri = tris[tgrid[listed + e]];
         let p = vec3<f32>(ci - tri.cell.xyz) * P.csize.xyz + (oi - tri.v0.xyz);
         let q = closest_on_triangle(p, tri.e1.xyz, tri.e2.xyz);
         let d = p - q;
@@ -619,7 +637,7 @@ fn drift(i: u32, dx: vec3<f32>) {
     cell[i] = vec4<i32>(c, m);
     off[i] = vec4<f32>(o, off[i].w);
     let moved = disp[i].xyz + dx;
-    disp[i] = vec4<f32>(moved, 0.0);
+    disp[i] = vec4<f32>(moved, disp[i].w);
     if (dot(moved, moved) > P.misc.y * P.misc.y) {
         atomicStore(&ctl[0], 1u);
     }
