@@ -3,7 +3,7 @@
 //! on a triangle's face, edge and corner, sliding to rolling at 5/7 of the launch speed, CDT
 //! rolling deceleration. f32 state: each test states its tolerance.
 
-mod common;
+use crate::common;
 
 use repose_engine::contact::RollingModel;
 use repose_engine::integrate::Integrator;

@@ -1,7 +1,7 @@
 //! The benchmark's bed on the GPU: it settles like the CPU engine's, and the same run twice is
 //! bit-identical on one adapter.
 
-mod common;
+use crate::common;
 
 use repose_engine::bench::{bed_lattice, settled_bed};
 use repose_engine_gpu::GpuWorld;

@@ -2,7 +2,7 @@
 //! with them, removed grains' slots are refilled, a full world refuses more, and a run with
 //! insertions is bit-identical when repeated.
 
-mod common;
+use crate::common;
 
 use repose_engine::integrate::Integrator;
 use repose_engine::kinematics::Motion;

@@ -1,0 +1,7 @@
+//! The crate's integration tests as one test binary (one link, the tests of every file
+//! run side by side): `cargo test -p repose-engine-gpu --test gpu <file>::`.
+
+mod bed;
+mod common;
+mod insertion;
+mod parity;
