@@ -1,7 +1,7 @@
 //! `repose analyze` and `repose design` as a user runs them: the paper's tables in, the
 //! paper's numbers out; bad input is one line and exit status 2, never a panic.
 
-mod common;
+use crate::common;
 use common::{paper, repose, stderr, stdout};
 use std::io::Write;
 

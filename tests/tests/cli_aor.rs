@@ -1,6 +1,6 @@
 //! `repose aor` as a user runs it: preset and --set in, result.json / pile.svg / final.csv out.
 
-mod common;
+use crate::common;
 use common::{repose, stderr, stdout};
 
 #[test]

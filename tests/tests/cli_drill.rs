@@ -1,7 +1,7 @@
 //! `repose drill` as a user runs it: preset and --set in; result.json, section.svg, forces.svg,
 //! forces.csv out; a bed cache that is written once and reused.
 
-mod common;
+use crate::common;
 use common::{repose, stderr, stdout};
 
 fn drill(out: &std::path::Path, cache: &std::path::Path) -> serde_json::Value {

@@ -1,7 +1,7 @@
 //! `repose shear` as a user runs it: preset and --set in; result.json, shear_curves.svg,
 //! mohr_coulomb.svg, shear_curves.csv out; a sample cache written once and reused.
 
-mod common;
+use crate::common;
 use common::{repose, stderr, stdout};
 
 /// The fast preset at two normal stresses, sheared 2 mm: the smallest run that still fits a

@@ -1,6 +1,6 @@
 //! `repose sim` as a user runs it: a scene file in, result files out.
 
-mod common;
+use crate::common;
 use common::{repose, stderr, stdout, workspace_root};
 
 const SCENE: &str = r#"

@@ -10,7 +10,7 @@
 //! CAP_NET_ADMIN); without them the test prints why and skips. Everything it creates carries a
 //! per-run tag and is removed by a drop guard, also when the test fails.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 use std::time::{Duration, Instant};

@@ -2,7 +2,7 @@
 //! `repose worker` processes, batches submitted over HTTP; workers and the server killed with
 //! SIGKILL mid-batch.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 
@@ -891,7 +891,7 @@ fn submit_status_and_watch_talk_to_the_server() {
 /// 2.5 s cap, and the test took 507 s of a 22-minute CI run (2026-11-24; it passed). The
 /// two-target campaign below still takes a campaign through the real engine and two worker
 /// processes in every CI run. Run it with
-/// `cargo test -p repose --test service -- --ignored a_campaign_on_the_dem_engine`.
+/// `cargo test -p repose --test cli -- --ignored service::a_campaign_on_the_dem_engine`.
 #[test]
 #[ignore = "about 8 minutes on 2 cores since the issue-13c rest rule; the two-target DEM campaign runs in CI"]
 fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum() {
@@ -971,7 +971,7 @@ fn a_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum()
 /// and its intercept follows the friction, not the cohesion (μs 0.3 / 0.6 at 0 and 2e4 J/m³:
 /// 0.72, 0.66 / 1.29, 1.41 kPa). This test shows the two-target machinery on the real engine,
 /// not a calibrated cohesion.
-/// With its printout: `cargo test -p repose --test service two_target_campaign -- --nocapture`.
+/// With its printout: `cargo test -p repose --test cli service::two_target_campaign -- --nocapture`.
 #[test]
 fn a_two_target_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verified_optimum() {
     let started = std::time::Instant::now();
