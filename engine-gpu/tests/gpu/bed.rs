@@ -134,9 +134,7 @@ fn neighbour_lists_hold_every_touching_pair_across_periodic_faces() {
 /// the motion says (a wrap of the voxel index, both directions, both axes and a corner).
 #[test]
 fn grains_crossing_the_periodic_faces_come_back_on_the_far_side() {
-    use repose_engine::material::{
-        Cohesion, DampingLaw, Interaction, InteractionEntry, Material, MaterialId, MaterialSet,
-    };
+    use repose_engine::material::MaterialId;
     use repose_engine::math::Vec3;
     use repose_engine::neighbor::Domain;
     use repose_engine::particles::ParticleSpec;
@@ -149,27 +147,7 @@ fn grains_crossing_the_periodic_faces_come_back_on_the_far_side() {
         periodic_x: true,
         periodic_y: true,
     };
-    let materials = MaterialSet {
-        damping_law: DampingLaw::default(),
-        materials: vec![Material {
-            name: "grain".into(),
-            density: 2500.0,
-            youngs_modulus: 1.0e8,
-            poisson: 0.3,
-        }],
-        interactions: vec![InteractionEntry {
-            a: "grain".into(),
-            b: "grain".into(),
-            coefficients: Interaction {
-                restitution: 0.5,
-                static_friction: 0.5,
-                rolling_friction: 0.0,
-                cohesion: Cohesion::None,
-            },
-        }],
-    }
-    .build()
-    .unwrap();
+    let materials = common::grain_materials(0.0);
     let dt = 1.0e-5;
     let mut config = WorldConfig::new(dt, domain);
     config.gravity = Vec3::zeros();

@@ -6,9 +6,7 @@ use crate::common;
 
 use repose_engine::integrate::Integrator;
 use repose_engine::kinematics::Motion;
-use repose_engine::material::{
-    Cohesion, DampingLaw, Interaction, InteractionEntry, Material, MaterialId, MaterialSet,
-};
+use repose_engine::material::MaterialId;
 use repose_engine::math::{Pose, Vec3};
 use repose_engine::mesh::generators;
 use repose_engine::neighbor::Domain;
@@ -21,27 +19,7 @@ const GRAIN: MaterialId = MaterialId(0);
 
 /// An empty world: a 5 cm plate (16 × 16 cells) at z = 0 in a 6 cm box open below it, gravity.
 fn empty(integrator: Integrator) -> World {
-    let materials = MaterialSet {
-        damping_law: DampingLaw::default(),
-        materials: vec![Material {
-            name: "grain".into(),
-            density: 2500.0,
-            youngs_modulus: 1.0e8,
-            poisson: 0.3,
-        }],
-        interactions: vec![InteractionEntry {
-            a: "grain".into(),
-            b: "grain".into(),
-            coefficients: Interaction {
-                restitution: 0.5,
-                static_friction: 0.5,
-                rolling_friction: 0.05,
-                cohesion: Cohesion::None,
-            },
-        }],
-    }
-    .build()
-    .unwrap();
+    let materials = common::grain_materials(0.05);
     let dt = materials.rayleigh_time_step(GRAIN, R, 0.2);
     let domain = Domain::closed(Vec3::new(-0.03, -0.03, -0.005), Vec3::new(0.03, 0.03, 0.06));
     let mut config = WorldConfig::new(dt, domain);

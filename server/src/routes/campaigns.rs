@@ -59,17 +59,7 @@ pub(super) async fn campaign_status(
     reader: Reader,
     PathId(id): PathId,
 ) -> Result<impl IntoResponse, AppError> {
-    let record = state
-        .db
-        .campaign(id)
-        .await?
-        .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
-    check_owner(
-        &state,
-        &reader,
-        record.owner.as_deref(),
-        &format!("campaign {id}"),
-    )?;
+    let record = readable_campaign(&state, &reader, id).await?;
     let campaign = campaigns::decode(&record)?;
     let mut batch_list = Vec::new();
     for (index, batch_id) in record.batch_ids.iter().enumerate() {
@@ -124,17 +114,7 @@ pub(super) async fn campaign_report(
     PathId(id): PathId,
     Query(query): Query<FormatQuery>,
 ) -> Result<Response, AppError> {
-    let record = state
-        .db
-        .campaign(id)
-        .await?
-        .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
-    check_owner(
-        &state,
-        &reader,
-        record.owner.as_deref(),
-        &format!("campaign {id}"),
-    )?;
+    let record = readable_campaign(&state, &reader, id).await?;
     let campaign = campaigns::decode(&record)?;
     let results = campaigns::stage_results(&state, &record).await?;
     let pictures = campaigns::report_pictures(&state, &campaign, &record).await?;
@@ -152,4 +132,24 @@ pub(super) async fn campaign_report(
             "unknown format `{other}` (expected html or json)"
         ))),
     }
+}
+
+/// Campaign `id` if it exists and `reader` may read it (404 otherwise, as for a missing one).
+async fn readable_campaign(
+    state: &AppState,
+    reader: &Reader,
+    id: uuid::Uuid,
+) -> Result<crate::db::CampaignRecord, AppError> {
+    let record = state
+        .db
+        .campaign(id)
+        .await?
+        .ok_or_else(|| AppError::NotFound(format!("campaign {id} not found")))?;
+    check_owner(
+        state,
+        reader,
+        record.owner.as_deref(),
+        &format!("campaign {id}"),
+    )?;
+    Ok(record)
 }

@@ -21,3 +21,32 @@ pub fn gpu() -> Option<Gpu> {
         Err(e) => panic!("{e}"),
     }
 }
+
+/// One material, "grain" (2500 kg/m³, E 1e8 Pa, ν 0.3), against itself with restitution 0.5,
+/// static friction 0.5 and rolling friction `rolling`.
+pub fn grain_materials(rolling: f64) -> repose_engine::material::MaterialTable {
+    use repose_engine::material::{
+        Cohesion, DampingLaw, Interaction, InteractionEntry, Material, MaterialSet,
+    };
+    MaterialSet {
+        damping_law: DampingLaw::default(),
+        materials: vec![Material {
+            name: "grain".into(),
+            density: 2500.0,
+            youngs_modulus: 1.0e8,
+            poisson: 0.3,
+        }],
+        interactions: vec![InteractionEntry {
+            a: "grain".into(),
+            b: "grain".into(),
+            coefficients: Interaction {
+                restitution: 0.5,
+                static_friction: 0.5,
+                rolling_friction: rolling,
+                cohesion: Cohesion::None,
+            },
+        }],
+    }
+    .build()
+    .unwrap()
+}
