@@ -154,9 +154,9 @@ fn grains_that_cannot_form_a_heap_are_reported_not_measured() {
 
 #[test]
 fn escaped_grains_make_an_escaped_run() {
-    // A plate barely wider than the funnel: the heap spills over its edge.
+    // A plate barely wider than the funnel (71 mm across its top): the heap spills over its edge.
     let mut spec = AorSpec::fast();
-    spec.set("base.size", "0.065").unwrap();
+    spec.set("base.size", "0.075").unwrap();
     spec.set("total_mass", "0.01").unwrap();
     let run = run_aor(&spec, &mut |_| Control::Continue).unwrap();
     let r = &run.result;
