@@ -45,10 +45,14 @@
 //! * The ladders of issue 13 ([`SIZE_LADDER`], [`MASS_LADDER`]): `size-2.5mm`, `size-1.5mm`
 //!   (0.3 kg), `mass-100g` (2 mm), and `paper-scale-sieve`: 0.3 kg with the sand's grading
 //!   ([`PAPER_SAND_SIEVE_CURVE`]) scaled to a 2 mm volume-mean diameter.
-//! * [`AorSpec::fast`] (`fast`, for tests): 1.25 mm radius (outlet 6.8 d, funnel otherwise
-//!   unscaled), 30 g (about 1 380 grains), outlet 40 mm above the plate, 0.2 m plate. Smaller
-//!   heaps are not heaps: with 12 g the first grains scatter over the steel plate into a carpet
-//!   one grain thick and the "heap" on it reads 8-10° whatever the coefficients.
+//! * [`AorSpec::fast`] (`fast`, the quick rig: tests and the README's first command): 1.25 mm
+//!   radius, 30 g (about 1 380 grains), a 25 mm outlet (10 d; the paper's 17 mm, 6.8 d, arched
+//!   at the μr 0.4 points of the paper's designs) 40 mm above the paper's 0.3 m plate, fed at
+//!   0.06 kg/s. It pours every point of the paper's Plackett-Burman and Box-Behnken designs
+//!   without an arch; at μr 0.01 on steel at μr 0.1 the grains spread into a mound two or three
+//!   grains high (1-4°), and one point (Table 3's run 7) into a single layer with no heap.
+//!   Smaller heaps are not heaps: with 12 g the first grains scatter over the steel plate into
+//!   a carpet one grain thick and the "heap" on it reads 8-10° whatever the coefficients.
 //!
 //! # What the grain size does to the angle
 //!
