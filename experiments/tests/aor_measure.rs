@@ -438,6 +438,22 @@ fn mismatched_lengths_are_rejected() {
 
 #[test]
 fn flat_layer_is_too_flat() {
+    // One layer of grains (tops at 1 d): no slope, too flat.
+    let mut layer = Pile::default();
+    for i in 0..40 {
+        for j in 0..40 {
+            layer
+                .positions
+                .push([i as f64 * 2.0 * MM, j as f64 * 2.0 * MM, MM]);
+            layer.radii.push(MM);
+        }
+    }
+    let err = measure_angle_of_repose(&layer.positions, &layer.radii, &MeasureSettings::default())
+        .unwrap_err();
+    assert!(matches!(err, MeasureError::PileTooFlat { .. }), "{err}");
+    assert!(err.to_string().contains("no pile"));
+    // Two flat layers (1.75 d) stand above the minimum height (issue 37: a second layer begun is
+    // a heap) but have no flank: nothing of the surface lies in the fit band, so still no pile.
     let mut pile = Pile::default();
     for i in 0..40 {
         for j in 0..40 {
@@ -453,8 +469,48 @@ fn flat_layer_is_too_flat() {
     }
     let err = measure_angle_of_repose(&pile.positions, &pile.radii, &MeasureSettings::default())
         .unwrap_err();
-    assert!(matches!(err, MeasureError::PileTooFlat { .. }), "{err}");
+    assert!(
+        matches!(err, MeasureError::TooFewFitPoints { found: 0, .. }),
+        "{err}"
+    );
     assert!(err.to_string().contains("no pile"));
+    // The old rule (3 d) called them too flat; it still can, as a setting.
+    let three = MeasureSettings {
+        min_height_diameters: 3.0,
+        ..MeasureSettings::default()
+    };
+    let err = measure_angle_of_repose(&pile.positions, &pile.radii, &three).unwrap_err();
+    assert!(matches!(err, MeasureError::PileTooFlat { .. }), "{err}");
+}
+
+/// A low heap is a low angle (issue 37): cones 2-3 grains high, below the old 3-grain minimum,
+/// are measured, at about their angle.
+#[test]
+fn low_heap_gives_its_low_angle() {
+    for (angle, seed) in [(6.0, 21), (8.0, 22)] {
+        let cone = Cone::symmetric(angle, 45.0 * MM);
+        let pile = random_loose_pile(&cone, 1.0 * MM, 1.0 * MM, 200_000, seed);
+        let m = measure(&pile, &MeasureSettings::default());
+        report(&format!("low {angle}°"), (angle, angle), &pile, &m);
+        assert!(
+            m.pile_height_m < 3.0 * 2.0 * MM,
+            "{angle}°: {} m",
+            m.pile_height_m
+        );
+        assert!(
+            (m.angle_deg - angle).abs() <= 2.5,
+            "{angle}°: measured {:.2}°",
+            m.angle_deg
+        );
+        let old = MeasureSettings {
+            min_height_diameters: 3.0,
+            ..MeasureSettings::default()
+        };
+        assert!(matches!(
+            measure_angle_of_repose(&pile.positions, &pile.radii, &old),
+            Err(MeasureError::PileTooFlat { .. })
+        ));
+    }
 }
 
 #[test]

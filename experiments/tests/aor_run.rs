@@ -154,10 +154,12 @@ fn grains_that_cannot_form_a_heap_are_reported_not_measured() {
 
 #[test]
 fn escaped_grains_make_an_escaped_run() {
-    // A plate barely wider than the funnel: the heap spills over its edge.
+    // A plate barely wider than the funnel (71 mm across its top): the heap spills over its
+    // edge. The fast rig's gentle 0.06 kg/s stream builds a heap that keeps most of its grains
+    // even there (26 of 1 376, 1.9 %, fall off), so the limit is 1 % here.
     let mut spec = AorSpec::fast();
-    spec.set("base.size", "0.065").unwrap();
-    spec.set("total_mass", "0.01").unwrap();
+    spec.set("base.size", "0.072").unwrap();
+    spec.set("max_escaped_fraction", "0.01").unwrap();
     let run = run_aor(&spec, &mut |_| Control::Continue).unwrap();
     let r = &run.result;
     assert!(r.grains.escaped.count > 0, "{r:?}");
@@ -203,16 +205,15 @@ fn an_arch_over_the_outlet_makes_a_held_up_run_without_an_angle() {
 
 #[test]
 fn a_heap_cut_by_the_time_cap_reports_how_far_from_rest_it_was() {
-    // The fast pour: insertion ends at 0.2 s, checks every 50 ms from 0.3 s; the heap is
-    // measurable from 0.5 s and at rest by kinetic energy at 0.7 s. Cut at 0.62 s, it ends by
-    // the time cap while slumping (40° → 26° over the last three checks) with the kinetic energy
-    // ~40× the threshold.
+    // The fast pour: insertion ends at 0.5 s, checks every 50 ms from 0.6 s; the heap is at
+    // rest by 0.85 s. Cut at 0.71 s, it ends by the time cap while slumping (24.8° → 20.9° over
+    // the last three checks) with the kinetic energy ~40× the threshold.
     let mut spec = AorSpec::fast();
     spec.settle.min_time = 0.1;
     spec.settle.check_interval = 0.05;
     spec.settle.angle_window = 3;
     spec.settle.creep_window_s = 0.1;
-    spec.time_cap = 0.42;
+    spec.time_cap = 0.21;
     let run = run_aor(&spec, &mut |_| Control::Continue).expect("the fast preset builds");
     let r = run.result;
     eprintln!("{:?} {:?} {:?}", r.ended_by, r.message, r.rest);
@@ -254,8 +255,11 @@ fn a_steep_heap_comes_to_rest_and_holds_its_angle() {
     // μr 0.40 at the fast resolution. Until 675dbdc CDT's torque followed the old ω, so grains
     // pushed by less than the rolling moment still turned a little every step: this heap stood
     // at ~39° 0.6 s after insertion, then slumped by degrees until the cap (24.0° at 4.2 s,
-    // −2.8°/s). The rolling brake holds it: at rest, its angle flat to round-off. (A heap that
-    // does not come to rest reports its creep: `a_heap_cut_by_the_time_cap_…` above.)
+    // −2.8°/s). The rolling brake holds it: at rest, its angle flat to round-off over the last
+    // checks. (At the 25 mm outlet the heap's last settling step, 0.23°, still falls inside the
+    // 0.5 s creep window: −0.46°/s over it, inside the limit, where the 17 mm rig read
+    // < 0.05°/s. A heap that does not come to rest reports its creep:
+    // `a_heap_cut_by_the_time_cap_…` above.)
     let mut spec = AorSpec::fast();
     spec.set("soil_soil.rolling_friction", "0.40").unwrap();
     let r = run(&spec);
@@ -264,7 +268,15 @@ fn a_steep_heap_comes_to_rest_and_holds_its_angle() {
     eprintln!("μr 0.40: {angle:.2}°, {rest}");
     assert!(angle > 35.0, "the steep heap stands: {angle}");
     assert!(rest.angle_range_deg.unwrap() < 1e-3, "{rest}");
-    assert!(rest.creep_deg_per_s.unwrap().abs() < 0.05, "{rest}");
+    assert!(
+        rest.creep_deg_per_s.unwrap().abs() <= spec.settle.max_creep_deg_per_s,
+        "{rest}"
+    );
+    let last: Vec<f64> = r.checks[r.checks.len() - 3..]
+        .iter()
+        .map(|c| c.angle_deg.unwrap())
+        .collect();
+    assert!(last.iter().all(|a| (a - angle).abs() < 1e-3), "{last:?}");
 }
 
 #[test]

@@ -12,9 +12,10 @@ use serde_json::{json, Value};
 
 /// A four-run angle-of-repose batch small enough for CI (≈ 1 150 grains a run, a few seconds
 /// each): static and rolling soil-soil friction on a 2² factorial. The rolling friction stays
-/// at or below 0.12: from about 0.2 the fast preset's funnel (outlet 6.8 grains wide) arches in
-/// some pours, and an arched run is `held_up`, with no angle (2026-11-25: μr 0.2-0.4 left
-/// fewer than three heaps here).
+/// at or below 0.12: from about 0.2 the fast preset's funnel, with its old 17 mm outlet (6.8
+/// grains wide), arched in some pours, and an arched run is `held_up`, with no angle
+/// (2026-11-25: μr 0.2-0.4 left fewer than three heaps here; the outlet is 25 mm since
+/// issue 37).
 fn small_aor_batch() -> Value {
     json!({
         "name": "two-worker AOR",

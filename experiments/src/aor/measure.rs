@@ -52,9 +52,12 @@
 //!
 //! # Errors rather than angles
 //!
-//! A run whose grains escaped, never settled into a heap, or spread into a layer has no angle of
-//! repose, so [`measure_angle_of_repose`] returns `Err(MeasureError)` in that case instead of a
-//! meaningless number. Every `Ok` result has all its numbers finite.
+//! A run whose grains escaped, never settled into a heap, or spread into a single layer has no
+//! angle of repose, so [`measure_angle_of_repose`] returns `Err(MeasureError)` in that case
+//! instead of a meaningless number. A heap that is merely low is not such a case: a mound two or
+//! three grains high on a carpet of grains has a slope, and its (low) angle is the result. The
+//! line between the two is a second layer of grains (`min_height_diameters`). Every `Ok` result
+//! has all its numbers finite.
 
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -99,7 +102,10 @@ pub struct MeasureSettings {
     pub axis_xy_m: Option<[f64; 2]>,
     /// Fewer usable particles than this is "no pile".
     pub min_particles: usize,
-    /// A pile lower than this many particle diameters is "no pile" (a flat layer has no slope).
+    /// A pile lower than this many particle diameters is "no pile": one layer of grains on the
+    /// base (its tops at 1 d) has no slope. Any grain resting on a layer reaches at least 1.82 d
+    /// (the top of a grain in the hollow of three touching ones, 1 + √(2/3)), so the default 1.5
+    /// asks for no more than a second layer begun: a heap that low is a low angle, not a failure.
     pub min_height_diameters: f64,
     /// Fewer surface points than this inside the fit band of any flank is "no pile".
     pub min_fit_points: usize,
@@ -125,7 +131,7 @@ impl Default for MeasureSettings {
             base_z_m: 0.0,
             axis_xy_m: None,
             min_particles: 20,
-            min_height_diameters: 3.0,
+            min_height_diameters: 1.5,
             min_fit_points: 3,
             outlier_rejection_sigmas: 2.5,
             silhouette_step_diameters: 0.25,
@@ -199,7 +205,7 @@ pub enum MeasureError {
         required: usize,
     },
     /// The heap is lower than [`MeasureSettings::min_height_diameters`] particle diameters: a
-    /// flat layer, or grains that spread out and never built a slope.
+    /// single layer of grains, which has no slope (grains that spread out and never built one).
     #[error(
         "no pile: height {height_m:.5} m is below the minimum {required_m:.5} m (pile too flat)"
     )]

@@ -45,10 +45,14 @@
 //! * The ladders of issue 13 ([`SIZE_LADDER`], [`MASS_LADDER`]): `size-2.5mm`, `size-1.5mm`
 //!   (0.3 kg), `mass-100g` (2 mm), and `paper-scale-sieve`: 0.3 kg with the sand's grading
 //!   ([`PAPER_SAND_SIEVE_CURVE`]) scaled to a 2 mm volume-mean diameter.
-//! * [`AorSpec::fast`] (`fast`, for tests): 1.25 mm radius (outlet 6.8 d, funnel otherwise
-//!   unscaled), 30 g (about 1 380 grains), outlet 40 mm above the plate, 0.2 m plate. Smaller
-//!   heaps are not heaps: with 12 g the first grains scatter over the steel plate into a carpet
-//!   one grain thick and the "heap" on it reads 8-10° whatever the coefficients.
+//! * [`AorSpec::fast`] (`fast`, the quick rig: tests and the README's first command): 1.25 mm
+//!   radius, 30 g (about 1 380 grains), a 25 mm outlet (10 d; the paper's 17 mm, 6.8 d, arched
+//!   at the μr 0.4 points of the paper's designs) 40 mm above the paper's 0.3 m plate, fed at
+//!   0.06 kg/s. It pours every point of the paper's Plackett-Burman and Box-Behnken designs
+//!   without an arch; at μr 0.01 on steel at μr 0.1 the grains spread into a mound two or three
+//!   grains high (1-4°), and one point (Table 3's run 7) into a single layer with no heap.
+//!   Smaller heaps are not heaps: with 12 g the first grains scatter over the steel plate into
+//!   a carpet one grain thick and the "heap" on it reads 8-10° whatever the coefficients.
 //!
 //! # What the grain size does to the angle
 //!
@@ -510,16 +514,21 @@ impl AorSpec {
         }
     }
 
-    /// A small heap for tests (1.25 mm grains, 30 g ≈ 1 380 grains, outlet lowered to 40 mm so
-    /// the stream falls for less time and scatters less; the funnel otherwise unscaled: its 17 mm
-    /// outlet is 6.8 grain diameters). About 30 s of one core in the test profile.
+    /// The quick rig, for tests and the README's first command (1.25 mm grains, 30 g ≈ 1 380
+    /// grains). Its funnel is the paper's 60° cone with a 25 mm outlet (10 grain diameters: the
+    /// paper's 17 mm, 6.8 diameters, arched at the μr 0.4 points of the paper's designs), 40 mm
+    /// above the paper's 0.3 m steel plate (the stream falls for less time and scatters less),
+    /// fed at 0.06 kg/s (the 17 mm outlet let these grains through at about that rate; at the
+    /// paper's 0.15 kg/s the wider outlet's faster stream throws the μr 0.01 pours off a 0.2 m
+    /// plate). About 10 s of one core in the release or test profile.
     pub fn fast() -> AorSpec {
         let mut spec = AorSpec::paper();
         spec.particle = SizeDistributionSpec::Fixed { radius: 0.00125 };
         spec.total_mass = 0.03;
+        spec.mass_rate = 0.06;
+        spec.funnel.outlet_diameter = 0.025;
         spec.funnel.outlet_height = 0.04;
         spec.funnel.segments = 32;
-        spec.base.size = 0.2;
         // The rest rule needs 0.5 s of still checks, and a fast heap can creep at ~1°/s with the
         // kinetic energy at 1e-6 m g d until 1.3 s after insertion (μs 0.44, seed 1: at rest at
         // 1.8 s), so the old rule's 1.5 s cap is too short.
