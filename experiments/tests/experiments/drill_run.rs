@@ -2,7 +2,7 @@
 //! auger, deeper feeds give deeper holes, the torque rises as the auger enters the soil, the bed
 //! can be stored and reused exactly, results survive JSON.
 
-mod common;
+use crate::common;
 
 use repose_experiments::Spec;
 use std::sync::OnceLock;

@@ -1,9 +1,9 @@
 //! DrillSpec: presets, dotted-path edits shared with AorSpec, validation naming the field, bed
 //! keys.
 
+use crate::common;
 use repose_experiments::aor::AorSpec;
 use repose_experiments::Spec;
-mod common;
 
 use common::fast_auger_stl;
 use repose_engine::math::Pose;

@@ -1,0 +1,13 @@
+//! The crate's integration tests as one test binary (one link, the tests of every file
+//! run side by side): `cargo test -p repose-experiments --test experiments <file>::`.
+
+mod aor_measure;
+mod aor_paper_designs;
+mod aor_presets;
+mod aor_run;
+mod aor_spec;
+mod common;
+mod drill_run;
+mod drill_spec;
+mod shear_run;
+mod shear_spec;
