@@ -98,39 +98,46 @@ fn add_point(
     }
 }
 
+/// Adds `rows` (factor name → coded level) as points labelled `"{label} run {i}"`.
+fn add_rows(
+    points: &mut Vec<Point>,
+    label: &str,
+    base: &AorSpec,
+    factors: &[Factor],
+    rows: &[Vec<(String, f64)>],
+) {
+    for (i, row) in rows.iter().enumerate() {
+        add_point(points, format!("{label} run {}", i + 1), base, factors, row);
+    }
+}
+
+/// A generated design's coded runs as rows of (factor name, level).
+fn coded_rows(names: &[&str], runs: &[Vec<f64>]) -> Vec<Vec<(String, f64)>> {
+    runs.iter()
+        .map(|row| {
+            names
+                .iter()
+                .map(|n| n.to_string())
+                .zip(row.clone())
+                .collect()
+        })
+        .collect()
+}
+
 /// Table 3's rows and the PB batch's own design rows, at the Table 2 levels (18 distinct points:
 /// six of the generator's rows are Table 3's).
 fn plackett_burman_points() -> Vec<Point> {
     let (base, factors, design) = batch("paper_screening_pb.json");
     assert_eq!(design["type"], "plackett_burman");
     let mut points = Vec::new();
-    for (i, row) in paper_table("plackett_burman_table3.csv").iter().enumerate() {
-        add_point(
-            &mut points,
-            format!("Table 3 run {}", i + 1),
-            &base,
-            &factors,
-            row,
-        );
-    }
+    let table = paper_table("plackett_burman_table3.csv");
+    add_rows(&mut points, "Table 3", &base, &factors, &table);
     assert_eq!(points.len(), 12);
     let names: Vec<&str> = factors.iter().map(|f| f.0.as_str()).collect();
     let runs = design["runs"].as_u64().unwrap() as usize;
     let generated = plackett_burman(&names, runs).unwrap();
-    for (i, row) in generated.coded_runs().iter().enumerate() {
-        let coded: Vec<(String, f64)> = names
-            .iter()
-            .map(|n| n.to_string())
-            .zip(row.clone())
-            .collect();
-        add_point(
-            &mut points,
-            format!("PB batch run {}", i + 1),
-            &base,
-            &factors,
-            &coded,
-        );
-    }
+    let rows = coded_rows(&names, generated.coded_runs());
+    add_rows(&mut points, "PB batch", &base, &factors, &rows);
     points
 }
 
@@ -140,34 +147,15 @@ fn box_behnken_points() -> Vec<Point> {
     let (base, factors, design) = batch("paper_box_behnken.json");
     assert_eq!(design["type"], "box_behnken");
     let mut points = Vec::new();
-    for (i, row) in paper_table("box_behnken_table6.csv").iter().enumerate() {
-        add_point(
-            &mut points,
-            format!("Table 6 run {}", i + 1),
-            &base,
-            &factors,
-            row,
-        );
-    }
+    let table = paper_table("box_behnken_table6.csv");
+    add_rows(&mut points, "Table 6", &base, &factors, &table);
     assert_eq!(points.len(), 13);
     let names: Vec<&str> = factors.iter().map(|f| f.0.as_str()).collect();
     let centre = design["centre_points"].as_u64().unwrap() as usize;
     let generated = box_behnken(&names, centre).unwrap();
     assert_eq!(generated.coded_runs().len(), 17, "the README's 17 runs");
-    for (i, row) in generated.coded_runs().iter().enumerate() {
-        let coded: Vec<(String, f64)> = names
-            .iter()
-            .map(|n| n.to_string())
-            .zip(row.clone())
-            .collect();
-        add_point(
-            &mut points,
-            format!("BBD batch run {}", i + 1),
-            &base,
-            &factors,
-            &coded,
-        );
-    }
+    let rows = coded_rows(&names, generated.coded_runs());
+    add_rows(&mut points, "BBD batch", &base, &factors, &rows);
     assert_eq!(points.len(), 13, "the batch's design is Table 6's points");
     points
 }
