@@ -880,7 +880,7 @@ fn verification(v: &VerificationOutcome, targets: &[Target], next: &Verification
 /// Stage 6 plan.
 fn drilling_plan(d: &DrillingValidation, unverified: bool) -> String {
     let at = if unverified {
-        "the most desirable setting found, which verification did not accept (so this is not a \
+        "the most desirable setting found, which no verification accepted (so this is not a \
          calibrated prediction: it shows how far that setting is from the measurement; the \
          campaign stops for attention after it)"
     } else {

@@ -560,6 +560,92 @@ fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation()
 }
 
 #[test]
+fn targets_in_conflict_still_drill_at_the_compromise_and_stop_for_attention() {
+    let mut experiments = BTreeMap::from([
+        (
+            "aor".to_owned(),
+            Experiment {
+                metrics: vec![("angle_deg", rising as Formula, 0.05)],
+            },
+        ),
+        (
+            "shear".to_owned(),
+            Experiment {
+                metrics: vec![("cohesion_kpa", also_rising as Formula, 0.1)],
+            },
+        ),
+    ]);
+    fn opening(x: &BTreeMap<String, f64>) -> Option<f64> {
+        Some(50.0 + 40.0 * x["a"])
+    }
+    experiments.insert(
+        String::new(),
+        Experiment {
+            metrics: vec![("opening_mm", opening as Formula, 0.0)],
+        },
+    );
+    let request = json!({
+        "name": "impossible, with a drilling validation",
+        "strategy": {"type": "bayesian", "max_runs": 60, "batch_size": 4},
+        "experiments": {"aor": template(&["a", "b"]), "shear": template(&["a", "b"])},
+        "targets": [
+            {"response": "aor.angle_deg", "target": 11.0, "tolerance": {"relative_pct": 2}},
+            {"response": "shear.cohesion_kpa", "target": 28.0, "tolerance": {"relative_pct": 2}}
+        ],
+        "factors": factors(&["a", "b"]),
+        "seed": 9,
+        "validation": {"experiment": template(&["a", "b"]), "measured": {"opening_mm": 60.0}},
+    });
+    let (campaign, outstanding) = start(request);
+    let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+    let Some(Step::NeedsAttention(reason)) = last else {
+        panic!("{last:?}\n{:#?}", campaign.decisions);
+    };
+    assert!(reason.contains("cannot be met together"), "{reason}");
+    assert!(reason.contains("aor.angle_deg") && reason.contains("shear.cohesion_kpa"));
+    let summary = campaign.summary.as_ref().expect("a result");
+    assert!(!summary.within_tolerance);
+    assert_eq!(
+        summary.bayesian.as_ref().unwrap().conflict,
+        vec!["aor.angle_deg", "shear.cohesion_kpa"]
+    );
+    // The drilling ran once, last, at the compromise the result reports.
+    let drills: Vec<_> = campaign
+        .batches
+        .iter()
+        .filter(|b| b.stage == repose_campaign::StageKind::Drilling)
+        .collect();
+    assert_eq!(drills.len(), 1);
+    assert_eq!(
+        campaign.batches.last().unwrap().stage,
+        repose_campaign::StageKind::Drilling
+    );
+    let DesignRequest::Explicit { points } = &drills[0].request.design else {
+        panic!("{:?}", drills[0].request.design);
+    };
+    let compromise: Vec<f64> = summary.parameters.iter().map(|p| p.value).collect();
+    assert_eq!(points, &vec![compromise.clone()]);
+    let outcome = summary
+        .drilling
+        .as_ref()
+        .expect("the compromise's drilling prediction");
+    let simulated = outcome.metrics[0].simulated.unwrap();
+    assert!((simulated - (50.0 + 40.0 * compromise[0])).abs() < 1e-9);
+    assert!(campaign
+        .decisions
+        .iter()
+        .any(|d| d.text.contains("which no verification accepted")));
+    // Not counted in the simulations.
+    let counted: usize = campaign
+        .batches
+        .iter()
+        .filter(|b| b.stage != repose_campaign::StageKind::Drilling)
+        .map(|b| common::expand(&b.request).len())
+        .sum();
+    assert_eq!(summary.simulations, Some(counted));
+}
+
+#[test]
 fn the_report_gives_each_dead_runs_reason_beside_it() {
     let experiments = coupled_experiments();
     let (mut campaign, outstanding) = start(coupled(3, 31.0, 2.2));

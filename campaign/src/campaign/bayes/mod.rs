@@ -88,6 +88,10 @@ pub struct BayesState {
     /// The verified point the drilling validation runs at.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drilling_point: Option<Vec<f64>>,
+    /// The responses named as conflicting by a stop that waits for the drilling validation at
+    /// the compromise ([`Campaign::unverified`] holds the stop's reason meanwhile).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub stop_conflict: Vec<String>,
 }
 
 /// One simulated point: its setting and what each target's experiment measured there.
@@ -619,11 +623,11 @@ impl Campaign {
                     .all(|o| o.values.is_empty())
                     && room == 0
                 {
-                    return Ok(self.bayes_stop(BayesStop::NothingCompleted));
+                    return self.bayes_stop(BayesStop::NothingCompleted);
                 }
                 let k = settings.batch_size.min(room);
                 if k == 0 {
-                    return Ok(self.bayes_stop(BayesStop::BudgetSpent { simulations }));
+                    return self.bayes_stop(BayesStop::BudgetSpent { simulations });
                 }
                 let d = self.request.factors.len();
                 let round = self.state().round + 1;
@@ -657,9 +661,9 @@ impl Campaign {
             return Ok(self.issue_verification(assessment.best.clone(), false));
         }
         if self.state().conflict_rounds >= CONFLICT_ROUNDS {
-            return Ok(self.bayes_stop(BayesStop::Conflict {
+            return self.bayes_stop(BayesStop::Conflict {
                 pairs: assessment.conflicts.clone(),
-            }));
+            });
         }
         let k = settings.batch_size.min(room);
         if k == 0 {
@@ -667,7 +671,7 @@ impl Campaign {
                 // Budget for the verification only: try the best point.
                 return Ok(self.issue_verification(assessment.best.clone(), true));
             }
-            return Ok(self.bayes_stop(BayesStop::BudgetSpent { simulations }));
+            return self.bayes_stop(BayesStop::BudgetSpent { simulations });
         }
         let points = self.propose(models, candidates, scores, k);
         let round = self.state().round + 1;
@@ -876,12 +880,18 @@ impl Campaign {
             return self.plan_round();
         }
         if self.request.drilling.is_some() {
-            return self.issue_bayes_drilling(point);
+            return self.issue_bayes_drilling(point, false);
         }
         Ok(self.bayes_finish())
     }
 
-    fn issue_bayes_drilling(&mut self, point: Vec<f64>) -> Result<Step, CampaignError> {
+    /// Issues the drilling validation at `point`: the verified calibration, or (`unverified`)
+    /// the best point or compromise of a campaign that stops without one.
+    fn issue_bayes_drilling(
+        &mut self,
+        point: Vec<f64>,
+        unverified: bool,
+    ) -> Result<Step, CampaignError> {
         let drilling = self.request.drilling.clone().expect("drilling requested");
         let specs: Vec<FactorSpec> = self
             .request
@@ -913,7 +923,7 @@ impl Campaign {
             StageKind::Drilling,
             Decided::DrillingPlanned {
                 drilling: &drilling,
-                unverified: false,
+                unverified,
             },
         );
         self.state_mut().drilling_point = Some(point.clone());
@@ -942,11 +952,19 @@ impl Campaign {
             Decided::Drilled {
                 outcome: &outcome,
                 several_targets: self.request.is_multi(),
-                unverified: false,
+                unverified: self.unverified.is_some(),
             },
         );
         self.drilling = Some(outcome);
-        self.bayes_finish()
+        match self.unverified.take() {
+            // Drilled at the compromise of a stop: the campaign still stops.
+            Some(reason) => {
+                let conflict = std::mem::take(&mut self.state_mut().stop_conflict);
+                let summary = self.bayes_summary(conflict);
+                self.stop_with_summary(summary, reason)
+            }
+            None => self.bayes_finish(),
+        }
     }
 
     /// The region, influences, Pareto front and failures, from surrogates fitted on all data.
@@ -1137,8 +1155,10 @@ impl Campaign {
         Step::Finished(summary)
     }
 
-    /// Ends without a verified calibration; the result still carries the best point.
-    fn bayes_stop(&mut self, stop: BayesStop) -> Step {
+    /// Ends without a verified calibration; the result still carries the best point. With a
+    /// drilling validation, it first runs at that point (the compromise, when targets
+    /// conflict), so the result says what the setting predicts for the held-back measurement.
+    fn bayes_stop(&mut self, stop: BayesStop) -> Result<Step, CampaignError> {
         let conflict: Vec<String> = match &stop {
             BayesStop::Conflict { pairs } => {
                 let mut names: Vec<String> = Vec::new();
@@ -1153,8 +1173,26 @@ impl Campaign {
             }
             _ => Vec::new(),
         };
-        let summary = self.bayes_summary(conflict);
+        let summary = self.bayes_summary(conflict.clone());
         let reason = wording::stop(&stop, &summary, &self.factor_names());
+        let drill_at = match stop {
+            BayesStop::NothingCompleted => None,
+            BayesStop::Conflict { .. } | BayesStop::BudgetSpent { .. } => self
+                .request
+                .drilling
+                .as_ref()
+                .filter(|_| self.drilling.is_none())
+                .and_then(|_| self.best_observed()),
+        };
+        if let Some((point, _, _)) = drill_at {
+            self.unverified = Some(reason);
+            self.state_mut().stop_conflict = conflict;
+            return self.issue_bayes_drilling(point, true);
+        }
+        Ok(self.stop_with_summary(summary, reason))
+    }
+
+    fn stop_with_summary(&mut self, summary: Summary, reason: String) -> Step {
         self.summary = Some(summary);
         self.status = Status::NeedsAttention {
             reason: reason.clone(),
