@@ -853,6 +853,55 @@ mod tests {
         assert!(bad.is_permanent(), "{bad:?}");
     }
 
+    /// Every preset's prepared JSON, and the bed key of each drilling and shear preset, by
+    /// hash: moving the spec types between modules must not change a field name, a default or
+    /// a cached bed's key. (Recorded before the experiment layer's refactoring, issue 37.)
+    #[test]
+    fn presets_and_bed_keys_are_as_before() {
+        use crate::Spec;
+        let mut seen = Vec::new();
+        for kind in Kind::ALL {
+            for preset in kind.presets() {
+                let spec = prepare_spec(kind.name(), Some(preset), &json!({})).unwrap();
+                let text = serde_json::to_string(&spec).unwrap();
+                let hash = crate::fnv1a(text.as_bytes());
+                seen.push(format!("{kind}/{preset} {hash:016x}"));
+            }
+        }
+        for preset in crate::drill::PRESETS {
+            let spec = crate::drill::DrillSpec::preset(preset).unwrap();
+            seen.push(format!("drill/{preset} {}", crate::drill::bed_key(&spec)));
+        }
+        for preset in crate::shear::PRESETS {
+            let spec = crate::shear::ShearSpec::preset(preset).unwrap();
+            seen.push(format!(
+                "shear/{preset} {}",
+                crate::shear::sample_key(&spec)
+            ));
+        }
+        let pinned = [
+            "aor/default c39391d40047b07c",
+            "aor/fast 1ca7e71ba5b310c5",
+            "aor/paper-scale 04208fdc4585c385",
+            "aor/fine 7600fa2547a9d803",
+            "aor/size-2.5mm a88c712f8f779d58",
+            "aor/size-1.5mm 571ff0accde9c8be",
+            "aor/mass-100g 751a52a818f9b08f",
+            "aor/paper-scale-sieve afc50a5568886834",
+            "drill/default 0500a8a97dc1855b",
+            "drill/fast 1feba4a402b7cfd3",
+            "drill/full b96e263b8828df22",
+            "shear/default 4ceedad5d6ae2b0d",
+            "shear/fast 85a596c68357ea10",
+            "drill/default bed-v2-c799c2efba703217",
+            "drill/fast bed-v2-a59bd87c59242559",
+            "drill/full bed-v2-268f918f70a4d81b",
+            "shear/default bed-v2-6f5f776c5d93f0b2",
+            "shear/fast bed-v2-dc77c0cdb4ec1e60",
+        ];
+        assert_eq!(seen, pinned, "{seen:#?}");
+    }
+
     #[test]
     fn table_lookup_runs_and_reports_misses_as_no_result() {
         let spec = json!({
