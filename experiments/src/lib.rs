@@ -7,6 +7,7 @@
 pub mod aor;
 pub mod catalog;
 pub mod drill;
+pub mod experiment;
 pub mod formula;
 pub mod progress;
 pub mod replay;

@@ -36,6 +36,7 @@
 //! ```
 
 mod checkpoint;
+mod experiment;
 mod ladder;
 mod measure;
 mod picture;
@@ -44,6 +45,7 @@ mod run;
 mod spec;
 
 pub use checkpoint::{checkpoint_key, AorCheckpoint, CheckpointError};
+pub use experiment::Aor;
 pub use ladder::{ladder_svg, LadderPoint};
 pub use measure::{
     measure_angle_of_repose, AngleOfRepose, DirectionProfile, FlankFit, MeasureError,

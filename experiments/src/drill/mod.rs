@@ -13,6 +13,7 @@
 //! No file I/O here: the bed and the pictures are returned as data and text.
 
 mod bed;
+mod experiment;
 mod measure;
 mod picture;
 mod run;
@@ -21,6 +22,7 @@ mod spec;
 pub use crate::progress::Control;
 pub use bed::{bed_key, build_bed, BedProgress, SettledBed, SettledBy, BED_FORMAT};
 pub(crate) use bed::{kinetic_energy_ratio, setup, Setup};
+pub use experiment::Drill;
 pub use measure::{
     height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
     HoleMeasurement, MeasureError,

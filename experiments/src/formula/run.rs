@@ -5,11 +5,11 @@ use std::collections::BTreeMap;
 use rand::SeedableRng;
 use rand_chacha::ChaCha20Rng;
 use rand_distr::{Distribution, Normal};
-use serde_json::json;
+use serde_json::{json, Value};
 
 use super::error::FormulaFailure;
 use super::spec::FormulaSpec;
-use crate::catalog::{ExperimentError, Outcome};
+use crate::experiment::{BedStore, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 
 /// A formula run's values.
@@ -90,24 +90,44 @@ impl FormulaSpec {
     }
 }
 
-/// The catalog's run of a formula job.
-pub(crate) fn run(
-    spec: &FormulaSpec,
-    seed: u64,
-    progress: &mut dyn FnMut(f64) -> Control,
-) -> Result<Outcome, ExperimentError> {
-    if progress(0.0) == Control::Cancel {
-        return Err(ExperimentError::Cancelled);
+/// The `formula` kind: no presets, a spec is given whole.
+#[derive(Debug, Clone, Copy)]
+pub struct Formula;
+
+impl Experiment for Formula {
+    const KIND: Kind = Kind::Formula;
+    type Spec = FormulaSpec;
+    const PRESETS: &'static [&'static str] = &[];
+
+    fn preset(_name: &str) -> Option<FormulaSpec> {
+        None
     }
-    let evaluation = spec.evaluate(seed)?;
-    Ok(Outcome {
-        details: json!({
-            "inputs": spec.inputs(),
-            "noise_free": evaluation.noise_free,
-            "noise": evaluation.noise,
-        }),
-        metrics: evaluation.metrics,
-        pictures: Vec::new(),
-        hold_s: 0.0,
-    })
+
+    fn parse(spec: &Value) -> Result<FormulaSpec, ExperimentError> {
+        FormulaSpec::from_json(spec).map_err(|e| ExperimentError::invalid_spec(&e))
+    }
+
+    /// Every response with its noise, or no result where the formula fails (under any seed).
+    fn run(
+        spec: FormulaSpec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        _beds: &mut dyn BedStore,
+        _checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        if progress(0.0) == Control::Cancel {
+            return Err(ExperimentError::Cancelled);
+        }
+        let evaluation = spec.evaluate(seed)?;
+        Ok(Outcome {
+            details: json!({
+                "inputs": spec.inputs(),
+                "noise_free": evaluation.noise_free,
+                "noise": evaluation.noise,
+            }),
+            metrics: evaluation.metrics,
+            pictures: Vec::new(),
+            hold_s: 0.0,
+        })
+    }
 }

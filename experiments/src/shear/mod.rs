@@ -16,12 +16,14 @@
 //!
 //! No file I/O here. See docs/shear.md.
 
+mod experiment;
 mod measure;
 mod picture;
 mod run;
 mod spec;
 mod window;
 
+pub use experiment::Shear;
 pub use measure::{
     mohr_coulomb_fit, running_mean, shear_strength, MohrCoulomb, ShearMeasureError, ShearPoint,
     ShearRecord, StrengthPoint,
