@@ -6,7 +6,9 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use repose_experiments::soil::{BedStore, NoBedStore, SettledBed};
 use repose_experiments::Spec;
+use repose_worker::FileBedStore;
 
 /// The spec `--preset`, `--spec FILE` (merged over the preset) and `--set` assignments give,
 /// in that order; not yet validated (a command may add to it first).
@@ -56,4 +58,37 @@ pub fn progress_bar(quiet: bool, message_template: &str) -> ProgressBar {
         .expect("valid template"),
     );
     bar
+}
+
+/// The settled beds of `--bed-cache DIR` (none without the flag): a bed found there is reused,
+/// a bed built is kept there. A bed that cannot be kept costs only its reuse: a warning (above
+/// `bar`), and the run goes on.
+pub fn bed_cache<'a>(dir: Option<&Path>, bar: &'a ProgressBar) -> Box<dyn BedStore + Send + 'a> {
+    match dir {
+        Some(dir) => Box::new(BedCache {
+            store: FileBedStore::new(dir),
+            bar,
+        }),
+        None => Box::new(NoBedStore),
+    }
+}
+
+/// [`bed_cache`]'s store: the file store, its write failures shown as warnings.
+struct BedCache<'a> {
+    store: FileBedStore,
+    bar: &'a ProgressBar,
+}
+
+impl BedStore for BedCache<'_> {
+    fn get(&mut self, key: &str) -> Option<SettledBed> {
+        self.store.get(key)
+    }
+
+    fn put(&mut self, bed: &SettledBed) {
+        if let Err(e) = self.store.write(bed) {
+            let dir = self.store.dir().display();
+            self.bar
+                .suspend(|| eprintln!("warning: bed not kept in {dir}: {e}"));
+        }
+    }
 }

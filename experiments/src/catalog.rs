@@ -13,13 +13,13 @@ use serde_json::Value;
 use crate::aor::{Aor, AorSpec};
 use crate::drill::{Drill, DrillSpec};
 pub use crate::experiment::{
-    BedStore, CheckpointStore, Experiment, ExperimentError, Kind, NoBedStore, NoCheckpoints,
-    Outcome, KINDS,
+    CheckpointStore, Experiment, ExperimentError, Kind, NoCheckpoints, Outcome, KINDS,
 };
 use crate::formula::{Formula, FormulaSpec};
 use crate::progress::Control;
 use crate::replay::{ReplaySpec, TableLookup};
 use crate::shear::{Shear, ShearSpec};
+pub use crate::soil::{BedStore, NoBedStore};
 
 impl Kind {
     /// Presets the kind offers (the first is its default).

@@ -1,6 +1,7 @@
 //! What every experiment kind is to the catalog: its name ([`Kind`]), what it reports
-//! ([`Outcome`], [`ExperimentError`]), the stores a run may use ([`BedStore`],
-//! [`CheckpointStore`]) and the [`Experiment`] trait each kind implements in its own folder.
+//! ([`Outcome`], [`ExperimentError`]), the checkpoint store a run may use
+//! ([`CheckpointStore`]; settled beds have [`BedStore`]) and the [`Experiment`] trait each
+//! kind implements in its own folder.
 //!
 //! A leaf module: the kinds import it, it imports no kind (the catalog, above them all, puts
 //! them behind one interface).
@@ -12,8 +13,8 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::drill::SettledBed;
 use crate::progress::Control;
+use crate::soil::BedStore;
 
 /// An experiment kind, parsed once from its name ([`Kind::parse`]) and dispatched by `match`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -235,28 +236,6 @@ pub struct Outcome {
     /// Seconds a worker should keep the job before reporting (the table-lookup test aid's
     /// stand-in for simulation time); 0 for real experiments.
     pub hold_s: f64,
-}
-
-/// Settled drilling beds (and shear samples, which are drilling beds in the shear box) kept
-/// between runs under their key: a worker keeps them on disk so that runs whose bed inputs are
-/// equal (e.g. a batch varying only the auger, with `bed.seed` fixed) do not rebuild the bed
-/// every time.
-pub trait BedStore {
-    /// The bed stored under `key`, if there is one.
-    fn get(&mut self, key: &str) -> Option<SettledBed>;
-    /// Keeps `bed` under `bed.key`; failing to keep it must not fail the run.
-    fn put(&mut self, bed: &SettledBed);
-}
-
-/// No store: every drilling run builds its own bed.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct NoBedStore;
-
-impl BedStore for NoBedStore {
-    fn get(&mut self, _key: &str) -> Option<SettledBed> {
-        None
-    }
-    fn put(&mut self, _bed: &SettledBed) {}
 }
 
 /// Checkpoints of long runs kept between attempts: a worker keeps them on disk, so a run whose

@@ -12,6 +12,7 @@ pub mod formula;
 pub mod progress;
 pub mod replay;
 pub mod shear;
+pub mod soil;
 mod spec_path;
 mod svg;
 

@@ -12,9 +12,10 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use crate::experiment::{
-    parse_spec, BedStore, CheckpointStore, Experiment, ExperimentError, InvalidField, Kind, Outcome,
+    parse_spec, CheckpointStore, Experiment, ExperimentError, InvalidField, Kind, Outcome,
 };
 use crate::progress::Control;
+use crate::soil::BedStore;
 
 /// Why a replay spec is unusable or has no row for the requested values.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -8,10 +8,9 @@ use serde_json::Value;
 use super::checkpoint::{checkpoint_key, AorCheckpoint};
 use super::run::{run_aor_with_checkpoints, Checkpoints, RunStatus};
 use super::spec::{AorSpec, PRESETS};
-use crate::experiment::{
-    parse_spec, BedStore, CheckpointStore, Experiment, ExperimentError, Kind, Outcome,
-};
+use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
+use crate::soil::BedStore;
 use crate::Spec;
 
 /// The angle-of-repose experiment.

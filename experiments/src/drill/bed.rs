@@ -17,18 +17,13 @@ use repose_engine::mesh::generators::open_box;
 use repose_engine::neighbor::Domain;
 use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, World, WorldConfig};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use super::measure::{height_field, surface_level};
 use super::run::{build_error, DrillError};
 use super::spec::DrillSpec;
 use crate::progress::Control;
-
-/// Version of the bed recipe and of its stored form; part of every key, so a change to how
-/// beds are built or stored never reuses an old bed. 2: every float is stored as its bits
-/// (in 1 the surface height and the build's figures were decimal, and one could come back an
-/// ulp off).
-pub const BED_FORMAT: u32 = 2;
+use crate::soil::{SettledBed, SettledBy, BED_FORMAT};
 
 /// Progress of the bed build.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,102 +35,6 @@ pub struct BedProgress {
     pub particles: usize,
     /// Mean kinetic energy per grain / (m g d).
     pub kinetic_energy_ratio: f64,
-}
-
-/// What ended a settling phase.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SettledBy {
-    /// Mean kinetic energy per grain below the threshold.
-    KineticEnergy,
-    /// The measured shape stayed within the tolerance over the window.
-    Stable,
-    /// Neither within the time cap (not at rest).
-    TimeCap,
-}
-
-/// A settled bed: the grains and how it was made, bit-exact through serde (every float is
-/// stored as its IEEE bits, so a stored bed gives the same run as a fresh one and compares
-/// equal to it).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SettledBed {
-    /// [`bed_key`] of the spec that built it.
-    pub key: String,
-    #[serde(with = "bits3")]
-    pub positions: Vec<[f64; 3]>,
-    #[serde(with = "bits3")]
-    pub velocities: Vec<[f64; 3]>,
-    #[serde(with = "bits3")]
-    pub angular_velocities: Vec<[f64; 3]>,
-    #[serde(with = "bits1")]
-    pub radii: Vec<f64>,
-    /// Median surface height (probe height field, away from the walls), m above the floor.
-    #[serde(with = "bits")]
-    pub surface_z: f64,
-    /// Whether a settle criterion was met (else the time cap ended the build).
-    pub settled: bool,
-    pub settled_by: SettledBy,
-    #[serde(with = "bits")]
-    pub kinetic_energy_ratio: f64,
-    #[serde(with = "bits")]
-    pub simulated_time_s: f64,
-    pub steps: u64,
-    #[serde(with = "bits")]
-    pub wall_time_s: f64,
-    /// Grains that left the bin while it was filled (lost over the walls).
-    pub escaped: u64,
-}
-
-mod bits {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_u64(x.to_bits())
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-        Ok(f64::from_bits(u64::deserialize(d)?))
-    }
-}
-
-mod bits3 {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(v: &[[f64; 3]], s: S) -> Result<S::Ok, S::Error> {
-        s.collect_seq(v.iter().flat_map(|p| p.iter().map(|x| x.to_bits())))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<[f64; 3]>, D::Error> {
-        let flat = Vec::<u64>::deserialize(d)?;
-        if flat.len() % 3 != 0 {
-            return Err(serde::de::Error::custom("length is not a multiple of 3"));
-        }
-        Ok(flat
-            .chunks_exact(3)
-            .map(|c| {
-                [
-                    f64::from_bits(c[0]),
-                    f64::from_bits(c[1]),
-                    f64::from_bits(c[2]),
-                ]
-            })
-            .collect())
-    }
-}
-
-mod bits1 {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(v: &[f64], s: S) -> Result<S::Ok, S::Error> {
-        s.collect_seq(v.iter().map(|x| x.to_bits()))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
-        Ok(Vec::<u64>::deserialize(d)?
-            .into_iter()
-            .map(f64::from_bits)
-            .collect())
-    }
 }
 
 /// Everything that determines the bed, hashed by [`bed_key`].

@@ -3,13 +3,12 @@
 
 use serde_json::Value;
 
-use super::bed::{bed_key, build_bed};
-use super::run::{run_drill_on_bed, DrillError, DrillStatus};
+use super::bed::bed_key;
+use super::run::{DrillError, DrillStatus};
 use super::spec::{DrillSpec, PRESETS};
-use crate::experiment::{
-    parse_spec, BedStore, CheckpointStore, Experiment, ExperimentError, Kind, Outcome,
-};
+use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
+use crate::soil::{run_on_bed, BedStore};
 use crate::Spec;
 
 /// The drilling experiment.
@@ -29,9 +28,9 @@ impl Experiment for Drill {
         parse_spec(Kind::Drill, spec, DrillSpec::validate)
     }
 
-    /// The bed is taken from `beds` when it holds one of this key, else built and kept there.
-    /// The outcome is the same, bit for bit, whether the bed was built or reused
-    /// (`details.bed.reused` says which).
+    /// The bed is taken from `beds` when it holds one of this key, else built (in the first
+    /// quarter of the progress) and kept there ([`run_on_bed`]). The outcome is the same, bit
+    /// for bit, whether the bed was built or reused (`details.bed.reused` says which).
     fn run(
         mut spec: DrillSpec,
         seed: u64,
@@ -47,27 +46,7 @@ impl Experiment for Drill {
                 message: other.to_string(),
             },
         };
-        let key = bed_key(&spec);
-        let cached = beds.get(&key).filter(|bed| bed.key == key);
-        let reused = cached.is_some();
-        // Building the bed takes the first quarter of the progress.
-        let bed_share = if reused { 0.0 } else { 0.25 };
-        let bed = match cached {
-            Some(bed) => bed,
-            None => {
-                let bed = build_bed(&spec, &mut |p| progress(bed_share * p.fraction))
-                    .map_err(drill_error)?;
-                beds.put(&bed);
-                bed
-            }
-        };
-        let bed_wall_s = if reused { 0.0 } else { bed.wall_time_s };
-        let mut run = run_drill_on_bed(&spec, bed, &mut |p| {
-            progress(bed_share + (1.0 - bed_share) * p.fraction)
-        })
-        .map_err(drill_error)?;
-        run.result.bed.reused = reused;
-        run.result.wall_time_s += bed_wall_s;
+        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction)).map_err(drill_error)?;
         let details = serde_json::to_value(&run.result).expect("DrillResult serialises");
         match run.result.status {
             DrillStatus::Ok | DrillStatus::NotSettled => {}

@@ -20,7 +20,8 @@ mod run;
 mod spec;
 
 pub use crate::progress::Control;
-pub use bed::{bed_key, build_bed, BedProgress, SettledBed, SettledBy, BED_FORMAT};
+pub use crate::soil::{SettledBed, SettledBy, BED_FORMAT};
+pub use bed::{bed_key, build_bed, BedProgress};
 pub(crate) use bed::{kinetic_energy_ratio, setup, Setup};
 pub use experiment::Drill;
 pub use measure::{

@@ -15,10 +15,7 @@ use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, GeometryId, World};
 use serde::{Deserialize, Serialize};
 
-use super::bed::{
-    bed_key, bin_world, build_bed, is_stable, kinetic_energy_ratio, setup, SettledBed, SettledBy,
-    SplitMix,
-};
+use super::bed::{bed_key, bin_world, build_bed, is_stable, kinetic_energy_ratio, setup, SplitMix};
 use super::measure::{
     height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
     HoleMeasurement,
@@ -26,6 +23,7 @@ use super::measure::{
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
 pub use crate::progress::{Control, Progress};
+use crate::soil::{run_on_bed, NoBedStore, OnBed, SettledBed, SettledBy};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
 /// did not settle is a [`DrillResult`] with a non-`ok` status, not an error).
@@ -264,33 +262,18 @@ impl DrillRun {
     }
 }
 
-/// Builds the bed and drills it: [`build_bed`] then [`run_drill_on_bed`]. The bed takes the first
-/// quarter of the progress fraction.
+/// Builds the bed and drills it: [`build_bed`] then [`run_drill_on_bed`] ([`run_on_bed`]
+/// without a store). The bed takes the first quarter of the progress fraction.
 pub fn run_drill(
     spec: &DrillSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
-    let started = Instant::now();
-    let bed = build_bed(spec, &mut |p| {
-        progress(Progress {
-            fraction: 0.25 * p.fraction,
-            phase: "bed",
-            time: p.time,
-            particles: p.particles,
-        })
-    })?;
-    let mut run = drill(spec, bed, false, &mut |p| {
-        progress(Progress {
-            fraction: 0.25 + 0.75 * p.fraction,
-            ..p
-        })
-    })?;
-    run.result.wall_time_s = started.elapsed().as_secs_f64();
-    Ok(run)
+    run_on_bed(spec, &mut NoBedStore, progress)
 }
 
 /// Drills a bed built earlier by [`build_bed`] for a spec with the same [`bed_key`] (e.g. read
-/// back from a cache). Same outcome, bit for bit, as [`run_drill`] on that spec.
+/// back from a cache). Same outcome, bit for bit, as [`run_drill`] on that spec, but for
+/// `bed.reused` (true here) and the wall time (without the bed's).
 pub fn run_drill_on_bed(
     spec: &DrillSpec,
     bed: SettledBed,
@@ -303,7 +286,45 @@ pub fn run_drill_on_bed(
             found: bed.key,
         });
     }
-    drill(spec, bed, true, progress)
+    drill(spec, bed, progress)
+}
+
+/// The drilling test runs on a settled bed, built in the first quarter of the progress.
+impl OnBed for DrillSpec {
+    type Run = DrillRun;
+    type Error = DrillError;
+    const BED_SHARE: f64 = 0.25;
+
+    fn bed_key(&self) -> String {
+        bed_key(self)
+    }
+
+    fn build_bed(
+        &self,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<SettledBed, DrillError> {
+        build_bed(self, &mut |p| {
+            progress(Progress {
+                fraction: p.fraction,
+                phase: "bed",
+                time: p.time,
+                particles: p.particles,
+            })
+        })
+    }
+
+    fn run_on_bed(
+        &self,
+        bed: SettledBed,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<DrillRun, DrillError> {
+        run_drill_on_bed(self, bed, progress)
+    }
+
+    fn note_bed(run: &mut DrillRun, reused: bool, bed_wall_time_s: f64) {
+        run.result.bed.reused = reused;
+        run.result.wall_time_s += bed_wall_time_s;
+    }
 }
 
 /// Angle the auger starts at, from the seed (replicates on one shared bed still differ).
@@ -312,10 +333,10 @@ fn start_angle(seed: u64) -> f64 {
     (rng.symmetric() + 1.0) * std::f64::consts::PI
 }
 
+/// Drills `bed` (handed in: `bed.reused` is true until [`OnBed::note_bed`] says otherwise).
 fn drill(
     spec: &DrillSpec,
     bed: SettledBed,
-    reused: bool,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
     let started = Instant::now();
@@ -582,7 +603,7 @@ fn drill(
             key: bed.key.clone(),
             particles: bed.positions.len(),
             settled: bed.settled,
-            reused,
+            reused: true,
             surface_z_mm: 1e3 * surface,
             simulated_time_s: bed.simulated_time_s,
             wall_time_s: bed.wall_time_s,
@@ -596,7 +617,7 @@ fn drill(
         simulated_time_s: world.time(),
         steps: world.steps(),
         time_step_s: world.config().time_step,
-        wall_time_s: started.elapsed().as_secs_f64() + if reused { 0.0 } else { bed.wall_time_s },
+        wall_time_s: started.elapsed().as_secs_f64(),
     };
     Ok(DrillRun {
         result,

@@ -9,8 +9,9 @@ use serde_json::{json, Value};
 
 use super::error::FormulaFailure;
 use super::spec::FormulaSpec;
-use crate::experiment::{BedStore, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
+use crate::experiment::{CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
+use crate::soil::BedStore;
 
 /// A formula run's values.
 #[derive(Debug, Clone, PartialEq)]

@@ -3,12 +3,11 @@
 
 use serde_json::Value;
 
-use super::run::{build_sample, run_shear_on_bed, sample_key, ShearError, ShearStatus};
+use super::run::{sample_key, ShearError, ShearStatus};
 use super::spec::{ShearSpec, PRESETS};
-use crate::experiment::{
-    parse_spec, BedStore, CheckpointStore, Experiment, ExperimentError, Kind, Outcome,
-};
+use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
+use crate::soil::{run_on_bed, BedStore};
 use crate::Spec;
 
 /// The direct shear experiment.
@@ -28,9 +27,9 @@ impl Experiment for Shear {
         parse_spec(Kind::Shear, spec, ShearSpec::validate)
     }
 
-    /// The sample is taken from `beds` when it holds one of this key, else built and kept
-    /// there. The outcome is the same, bit for bit, whether the sample was built or reused
-    /// (`details.bed.reused` says which).
+    /// The sample is taken from `beds` when it holds one of this key, else built (in the first
+    /// fifth of the progress) and kept there ([`run_on_bed`]). The outcome is the same, bit
+    /// for bit, whether the sample was built or reused (`details.bed.reused` says which).
     fn run(
         mut spec: ShearSpec,
         seed: u64,
@@ -46,27 +45,7 @@ impl Experiment for Shear {
                 message: other.to_string(),
             },
         };
-        let key = sample_key(&spec);
-        let cached = beds.get(&key).filter(|bed| bed.key == key);
-        let reused = cached.is_some();
-        // Building the sample takes the first fifth of the progress.
-        let bed_share = if reused { 0.0 } else { 0.2 };
-        let bed = match cached {
-            Some(bed) => bed,
-            None => {
-                let bed = build_sample(&spec, &mut |p| progress(bed_share * p.fraction))
-                    .map_err(shear_error)?;
-                beds.put(&bed);
-                bed
-            }
-        };
-        let bed_wall_s = if reused { 0.0 } else { bed.wall_time_s };
-        let mut run = run_shear_on_bed(&spec, bed, &mut |p| {
-            progress(bed_share + (1.0 - bed_share) * p.fraction)
-        })
-        .map_err(shear_error)?;
-        run.result.bed.reused = reused;
-        run.result.wall_time_s += bed_wall_s;
+        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction)).map_err(shear_error)?;
         // The series thinned: a job server takes at most 64 KiB of details.
         let details =
             serde_json::to_value(run.result.for_details()).expect("ShearResult serialises");

@@ -37,10 +37,9 @@ use super::measure::{
 use super::picture::{curves_svg, strength_svg};
 use super::spec::{ShearSpec, SpecError};
 use super::window::{PlaneStress, Window};
-use crate::drill::{
-    bed_key, build_bed, kinetic_energy_ratio, setup, BedInfo, DrillError, SettledBed, Setup,
-};
+use crate::drill::{bed_key, build_bed, kinetic_energy_ratio, setup, BedInfo, DrillError, Setup};
 pub use crate::progress::{Control, Progress};
+use crate::soil::{run_on_bed, NoBedStore, OnBed, SettledBed};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose
 /// stages did not all consolidate is a [`ShearResult`] with a non-`ok` status, not an error).
@@ -358,31 +357,18 @@ pub fn build_sample(
     })?)
 }
 
-/// Builds the sample and runs every stage on it. The sample takes the first fifth of the
-/// progress fraction.
+/// Builds the sample and runs every stage on it ([`run_on_bed`] without a store). The sample
+/// takes the first fifth of the progress fraction.
 pub fn run_shear(
     spec: &ShearSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
-    let started = Instant::now();
-    let bed = build_sample(spec, &mut |p| {
-        progress(Progress {
-            fraction: 0.2 * p.fraction,
-            ..p
-        })
-    })?;
-    let mut run = shear(spec, bed, false, &mut |p| {
-        progress(Progress {
-            fraction: 0.2 + 0.8 * p.fraction,
-            ..p
-        })
-    })?;
-    run.result.wall_time_s = started.elapsed().as_secs_f64();
-    Ok(run)
+    run_on_bed(spec, &mut NoBedStore, progress)
 }
 
 /// Runs every stage on a sample built earlier by [`build_sample`] for a spec with the same
-/// [`sample_key`] (e.g. from a cache). Same outcome, bit for bit, as [`run_shear`].
+/// [`sample_key`] (e.g. from a cache). Same outcome, bit for bit, as [`run_shear`], but for
+/// `bed.reused` (true here) and the wall time (without the sample's).
 pub fn run_shear_on_bed(
     spec: &ShearSpec,
     bed: SettledBed,
@@ -395,13 +381,45 @@ pub fn run_shear_on_bed(
             found: bed.key,
         });
     }
-    shear(spec, bed, true, progress)
+    shear(spec, bed, progress)
 }
 
+/// The shear test runs on a settled sample, built in the first fifth of the progress.
+impl OnBed for ShearSpec {
+    type Run = ShearRun;
+    type Error = ShearError;
+    const BED_SHARE: f64 = 0.2;
+
+    fn bed_key(&self) -> String {
+        sample_key(self)
+    }
+
+    fn build_bed(
+        &self,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<SettledBed, ShearError> {
+        build_sample(self, progress)
+    }
+
+    fn run_on_bed(
+        &self,
+        bed: SettledBed,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<ShearRun, ShearError> {
+        run_shear_on_bed(self, bed, progress)
+    }
+
+    fn note_bed(run: &mut ShearRun, reused: bool, bed_wall_time_s: f64) {
+        run.result.bed.reused = reused;
+        run.result.wall_time_s += bed_wall_time_s;
+    }
+}
+
+/// Runs every stage on `bed` (handed in: `bed.reused` is true until [`OnBed::note_bed`] says
+/// otherwise).
 fn shear(
     spec: &ShearSpec,
     bed: SettledBed,
-    reused: bool,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
     let started = Instant::now();
@@ -491,7 +509,7 @@ fn shear(
             key: bed.key.clone(),
             particles: bed.positions.len(),
             settled: bed.settled,
-            reused,
+            reused: true,
             surface_z_mm: 1e3 * bed.surface_z,
             simulated_time_s: bed.simulated_time_s,
             wall_time_s: bed.wall_time_s,
@@ -503,7 +521,7 @@ fn shear(
         time_step_s: s.dt,
         simulated_time_s: simulated,
         steps,
-        wall_time_s: started.elapsed().as_secs_f64() + if reused { 0.0 } else { bed.wall_time_s },
+        wall_time_s: started.elapsed().as_secs_f64(),
     };
     Ok(ShearRun {
         result,
