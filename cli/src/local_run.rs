@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use repose_experiments::soil::{BedStore, NoBedStore, SettledBed};
 use repose_experiments::Spec;
-use repose_worker::FileBedStore;
+use repose_stores::FileBedStore;
 
 /// The spec `--preset`, `--spec FILE` (merged over the preset) and `--set` assignments give,
 /// in that order; not yet validated (a command may add to it first).

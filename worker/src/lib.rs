@@ -39,13 +39,10 @@ use repose_experiments::progress::Control;
 use tokio::sync::watch;
 use uuid::Uuid;
 
-mod beds;
-mod checkpoints;
 mod client;
 
-pub use beds::FileBedStore;
-pub use checkpoints::{write_atomically, FileCheckpointStore};
 pub use client::{CallError, Client};
+use repose_stores::{FileBedStore, FileCheckpointStore};
 
 /// Worker settings; the command line fills this from its flags.
 #[derive(Debug, Clone)]
