@@ -44,6 +44,7 @@ mod rest;
 mod run;
 mod spec;
 
+pub use crate::soil::{MaterialProps, Materials, RollingSpec};
 pub use checkpoint::{checkpoint_key, AorCheckpoint, CheckpointError};
 pub use experiment::Aor;
 pub use ladder::{ladder_svg, LadderPoint};
@@ -58,9 +59,7 @@ pub use run::{
     AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SaveCheckpoint,
     SettleCheck,
 };
-pub(crate) use spec::check_contacts;
 pub use spec::{
-    sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry,
-    MaterialProps, Materials, Protocol, RollingSpec, SettleSpec, SpecError, MASS_LADDER,
-    PAPER_SAND_SIEVE_CURVE, PRESETS, SIZE_LADDER,
+    sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, Protocol,
+    SettleSpec, SpecError, MASS_LADDER, PAPER_SAND_SIEVE_CURVE, PRESETS, SIZE_LADDER,
 };

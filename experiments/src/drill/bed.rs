@@ -41,7 +41,7 @@ pub struct BedProgress {
 #[derive(Serialize)]
 struct BedInputs<'a> {
     format: u32,
-    materials: &'a crate::aor::Materials,
+    materials: &'a crate::soil::Materials,
     soil_soil: &'a repose_engine::material::Interaction,
     soil_steel: &'a repose_engine::material::Interaction,
     rolling: repose_engine::contact::RollingModel,
@@ -49,7 +49,7 @@ struct BedInputs<'a> {
     bin: &'a super::spec::BinSpec,
     depth: f64,
     packing_fraction: f64,
-    settle: &'a super::spec::SettleSpec,
+    settle: &'a crate::soil::SettleSpec,
     time_step_rayleigh_fraction: f64,
     seed: u64,
 }
@@ -171,7 +171,7 @@ pub(crate) fn kinetic_energy_ratio(world: &World) -> f64 {
 }
 
 /// True if the last `window` values lie within `tolerance_diameters × d` of each other.
-pub(crate) fn is_stable(values: &[f64], settle: &super::spec::SettleSpec, d: f64) -> bool {
+pub(crate) fn is_stable(values: &[f64], settle: &crate::soil::SettleSpec, d: f64) -> bool {
     let window = settle.stable_window;
     if values.len() < window {
         return false;

@@ -20,6 +20,7 @@ mod run;
 mod spec;
 
 pub use crate::progress::Control;
+pub use crate::soil::SettleSpec;
 pub use crate::soil::{SettledBed, SettledBy, BED_FORMAT};
 pub use bed::{bed_key, build_bed, BedProgress};
 pub(crate) use bed::{kinetic_energy_ratio, setup, Setup};
@@ -33,8 +34,7 @@ pub use run::{
     run_drill, run_drill_on_bed, BedInfo, DrillError, DrillResult, DrillRun, DrillStatus,
     LoadSample, Progress,
 };
-pub(crate) use spec::max_radius;
 pub use spec::{
-    AugerGeometry, BedSpec, BinSpec, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SettleSpec,
-    SpecError, StlDrill, PRESETS,
+    AugerGeometry, BedSpec, BinSpec, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SpecError,
+    StlDrill, PRESETS,
 };
