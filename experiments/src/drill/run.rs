@@ -15,15 +15,15 @@ use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, GeometryId, World};
 use serde::{Deserialize, Serialize};
 
-use super::bed::{bed_key, bin_world, build_bed, is_stable, kinetic_energy_ratio, setup, SplitMix};
-use super::measure::{
-    height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
-    HoleMeasurement,
-};
+use super::bed::{bed_key, build_bed};
+use super::measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
 pub use crate::progress::{Control, Progress};
-use crate::soil::{run_on_bed, NoBedStore, OnBed, SettledBed, SettledBy};
+use crate::soil::{
+    bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
+    BedError, BedInfo, HeightField, NoBedStore, OnBed, SettledBed, SettledBy, SplitMix,
+};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
 /// did not settle is a [`DrillResult`] with a non-`ok` status, not an error).
@@ -45,7 +45,21 @@ pub enum DrillError {
     WallTimeCap { phase: &'static str, cap_s: f64 },
 }
 
-pub(crate) fn build_error(part: &'static str, e: impl std::fmt::Display) -> DrillError {
+impl From<BedError> for DrillError {
+    fn from(e: BedError) -> DrillError {
+        match e {
+            BedError::Spec(e) => DrillError::Spec(e),
+            BedError::Build { part, reason } => DrillError::Build { part, reason },
+            BedError::Cancelled => DrillError::Cancelled,
+            BedError::WallTimeCap { cap_s } => DrillError::WallTimeCap {
+                phase: "bed",
+                cap_s,
+            },
+        }
+    }
+}
+
+fn build_error(part: &'static str, e: impl std::fmt::Display) -> DrillError {
     DrillError::Build {
         part,
         reason: e.to_string(),
@@ -79,19 +93,6 @@ pub struct LoadSample {
     pub torque_nm: f64,
     /// Vertical force of the soil on the auger, N (positive: upward, resisting the feed).
     pub axial_force_n: f64,
-}
-
-/// Facts about the bed the run used.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BedInfo {
-    pub key: String,
-    pub particles: usize,
-    pub settled: bool,
-    /// True if the bed was handed in (e.g. from a cache) rather than built by this call.
-    pub reused: bool,
-    pub surface_z_mm: f64,
-    pub simulated_time_s: f64,
-    pub wall_time_s: f64,
 }
 
 /// The result of one drilling run (serde; what `result.json` holds). Hole lengths in mm,
@@ -341,7 +342,8 @@ fn drill(
 ) -> Result<DrillRun, DrillError> {
     let started = Instant::now();
     spec.validate()?;
-    let s = setup(spec)?;
+    let recipe = spec.bed_recipe();
+    let s = setup(&recipe)?;
     let a = &spec.auger;
     let d = &spec.drill;
     let surface = bed.surface_z;
@@ -408,7 +410,7 @@ fn drill(
 
     // Room above the surface for flung grains; grains leaving the domain are counted escaped.
     let top = spec.bin.height.max(surface) + 0.1 + d.lift_height;
-    let mut world = bin_world(spec, &s, top, spec.seed)?;
+    let mut world = bin_world(&recipe, &s, top, spec.seed)?;
     for k in 0..bed.positions.len() {
         let v = |x: [f64; 3]| Vec3::new(x[0], x[1], x[2]);
         world
@@ -599,15 +601,7 @@ fn drill(
         feed_energy_j: loads.feed_energy,
         energy_j: loads.rotation_energy + loads.feed_energy,
         series: loads.series,
-        bed: BedInfo {
-            key: bed.key.clone(),
-            particles: bed.positions.len(),
-            settled: bed.settled,
-            reused: true,
-            surface_z_mm: 1e3 * surface,
-            simulated_time_s: bed.simulated_time_s,
-            wall_time_s: bed.wall_time_s,
-        },
+        bed: BedInfo::of(&bed),
         grain_diameter_mm: 2e3 * mean_r,
         particles: world.particles().len(),
         escaped: world.removed_count(),

@@ -54,38 +54,12 @@ use repose_engine::mesh::TriMesh;
 use serde::{Deserialize, Serialize};
 
 use crate::soil::{
-    check_contacts, check_rayleigh_fraction, coarse_grains, default_epsd_damping,
-    default_rayleigh_fraction, max_radius, non_negative, paper_soil_soil, paper_soil_steel,
-    positive, Materials, RollingSpec, SettleSpec,
+    coarse_grains, default_epsd_damping, default_rayleigh_fraction, max_radius, non_negative,
+    paper_soil_soil, paper_soil_steel, positive, BedRecipe, BedSpec, BinSpec, Materials,
+    RollingSpec, SettleSpec, SurfaceReading,
 };
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
-
-/// The steel soil bin: an open box, floor at z = 0, centred on the drill axis (x = y = 0).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BinSpec {
-    /// m
-    pub size_x: f64,
-    /// m
-    pub size_y: f64,
-    /// Wall height, m (at least the bed depth).
-    pub height: f64,
-}
-
-/// The soil bed: grains dropped from a loose lattice filling the bin, settled under gravity.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BedSpec {
-    /// Depth of the settled bed aimed at, m (the grain count is sized from it).
-    pub depth: f64,
-    /// Solid volume fraction assumed to size the grain count.
-    pub packing_fraction: f64,
-    /// Seed of the bed; `None` uses the spec's `seed`.
-    #[serde(default)]
-    pub seed: Option<u64>,
-    pub settle: SettleSpec,
-}
 
 /// The helical auger (steel), tip down on the z axis.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -190,12 +164,14 @@ pub struct DrillMeasureSettings {
 }
 
 impl Default for DrillMeasureSettings {
+    /// The bed's surface is read as any bed's ([`SurfaceReading::default`]).
     fn default() -> Self {
+        let surface = SurfaceReading::default();
         DrillMeasureSettings {
-            cell_fraction: 0.5,
-            probe_fraction: 1.0,
+            cell_fraction: surface.cell_fraction,
+            probe_fraction: surface.probe_fraction,
             open_depth_diameters: 1.0,
-            wall_margin_diameters: 2.0,
+            wall_margin_diameters: surface.wall_margin_diameters,
             series_interval: 0.05,
         }
     }
@@ -358,53 +334,38 @@ impl DrillSpec {
         self.bed.seed.unwrap_or(self.seed)
     }
 
+    /// The recipe of the bed this spec drills (its soil, bin, bed, time step and surface
+    /// reading).
+    pub fn bed_recipe(&self) -> BedRecipe {
+        BedRecipe {
+            materials: self.materials,
+            soil_soil: self.soil_soil,
+            soil_steel: self.soil_steel,
+            rolling_model: self.rolling_model,
+            epsd_viscous_damping: self.epsd_viscous_damping,
+            particle: self.particle.clone(),
+            bin: self.bin,
+            bed: self.bed,
+            time_step_rayleigh_fraction: self.time_step_rayleigh_fraction,
+            wall_time_cap: self.wall_time_cap,
+            seed: self.seed,
+            surface: SurfaceReading {
+                cell_fraction: self.measure.cell_fraction,
+                probe_fraction: self.measure.probe_fraction,
+                wall_margin_diameters: self.measure.wall_margin_diameters,
+            },
+        }
+    }
+
     /// Checks the fields that make the bed ([`super::bed_key`]'s inputs, the wall-time cap):
-    /// all [`super::build_bed`] needs. The shear test builds its sample with it from a spec
-    /// whose auger and drilling fields are unused.
+    /// all [`super::build_bed`] needs ([`BedRecipe::validate`]).
     pub fn validate_bed(&self) -> Result<(), SpecError> {
-        check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)?;
-        positive("bin.size_x", self.bin.size_x)?;
-        positive("bin.size_y", self.bin.size_y)?;
-        positive("bin.height", self.bin.height)?;
-        positive("bed.depth", self.bed.depth)?;
-        let phi = self.bed.packing_fraction;
-        if !(phi > 0.2 && phi < 0.75) {
-            return Err(invalid(
-                "bed.packing_fraction",
-                format!("must be between 0.2 and 0.75, got {phi}"),
-            ));
-        }
-        if self.bed.depth > self.bin.height {
-            return Err(invalid(
-                "bed.depth",
-                format!("must not exceed bin.height = {}", self.bin.height),
-            ));
-        }
-        self.bed.settle.check("bed.settle")?;
-        self.settle.check("settle")?;
-        let max_radius = max_radius(&self.particle);
-        if max_radius.is_finite()
-            && max_radius > 0.0
-            && 8.0 * max_radius > self.bin.size_x.min(self.bin.size_y)
-        {
-            return Err(invalid(
-                "particle",
-                "grains are too large for the bin (need at least 4 across)",
-            ));
-        }
-        check_rayleigh_fraction(self.time_step_rayleigh_fraction)?;
-        if let Some(cap) = self.wall_time_cap {
-            positive("wall_time_cap", cap)?;
-        }
-        let m = &self.measure;
-        positive("measure.cell_fraction", m.cell_fraction)?;
-        non_negative("measure.probe_fraction", m.probe_fraction)?;
-        non_negative("measure.wall_margin_diameters", m.wall_margin_diameters)?;
-        Ok(())
+        self.bed_recipe().validate()
     }
 
     /// The auger, its kinematics, the settling after drilling and the hole measurement.
     fn validate_drilling(&self) -> Result<(), SpecError> {
+        self.settle.check("settle")?;
         let a = &self.auger;
         positive("auger.outer_diameter", a.outer_diameter)?;
         if let Some(stl) = &self.auger_stl {

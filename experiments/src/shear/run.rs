@@ -37,9 +37,11 @@ use super::measure::{
 use super::picture::{curves_svg, strength_svg};
 use super::spec::{ShearSpec, SpecError};
 use super::window::{PlaneStress, Window};
-use crate::drill::{bed_key, build_bed, kinetic_energy_ratio, setup, BedInfo, DrillError, Setup};
 pub use crate::progress::{Control, Progress};
-use crate::soil::{run_on_bed, NoBedStore, OnBed, SettledBed};
+use crate::soil::{
+    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, NoBedStore, OnBed, SettledBed,
+    Setup,
+};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose
 /// stages did not all consolidate is a [`ShearResult`] with a non-`ok` status, not an error).
@@ -63,16 +65,13 @@ pub enum ShearError {
     WallTimeCap { phase: &'static str, cap_s: f64 },
 }
 
-impl From<DrillError> for ShearError {
-    fn from(e: DrillError) -> ShearError {
+impl From<BedError> for ShearError {
+    fn from(e: BedError) -> ShearError {
         match e {
-            DrillError::Spec(e) => ShearError::Spec(e),
-            DrillError::Build { part, reason } => ShearError::Build { part, reason },
-            DrillError::BedMismatch { expected, found } => {
-                ShearError::BedMismatch { expected, found }
-            }
-            DrillError::Cancelled => ShearError::Cancelled,
-            DrillError::WallTimeCap { cap_s, .. } => ShearError::WallTimeCap {
+            BedError::Spec(e) => ShearError::Spec(e),
+            BedError::Build { part, reason } => ShearError::Build { part, reason },
+            BedError::Cancelled => ShearError::Cancelled,
+            BedError::WallTimeCap { cap_s } => ShearError::WallTimeCap {
                 phase: "building the sample",
                 cap_s,
             },
@@ -336,9 +335,9 @@ impl ShearRun {
     }
 }
 
-/// The sample's cache key: the drilling bed key of [`ShearSpec::bed_spec`].
+/// The sample's cache key: the key of [`ShearSpec::bed_recipe`].
 pub fn sample_key(spec: &ShearSpec) -> String {
-    bed_key(&spec.bed_spec())
+    spec.bed_recipe().key()
 }
 
 /// Pours and settles the sample of `spec` (the drilling bed recipe in the closed box).
@@ -347,7 +346,7 @@ pub fn build_sample(
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<SettledBed, ShearError> {
     spec.validate()?;
-    Ok(build_bed(&spec.bed_spec(), &mut |p| {
+    Ok(spec.bed_recipe().build(&mut |p| {
         progress(Progress {
             fraction: p.fraction,
             phase: "sample",
@@ -426,7 +425,7 @@ fn shear(
     spec.validate()?;
     // The sample's setup (grain sizes, time step) with the spec's own contacts: the sample was
     // poured without cohesion, the stages have it.
-    let mut s = setup(&spec.bed_spec())?;
+    let mut s = setup(&spec.bed_recipe())?;
     s.table = spec
         .material_set()
         .build()
@@ -505,15 +504,7 @@ fn shear(
         peak_fit: box_peak,
         residual_fit: residual,
         stages,
-        bed: BedInfo {
-            key: bed.key.clone(),
-            particles: bed.positions.len(),
-            settled: bed.settled,
-            reused: true,
-            surface_z_mm: 1e3 * bed.surface_z,
-            simulated_time_s: bed.simulated_time_s,
-            wall_time_s: bed.wall_time_s,
-        },
+        bed: BedInfo::of(&bed),
         box_side_mm: 1e3 * spec.shear_box.side,
         shear_plane_mm: 1e3 * spec.shear_box.half_height,
         grain_diameter_mm: 2e3 * mean_r,

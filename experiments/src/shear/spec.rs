@@ -69,10 +69,10 @@ use repose_engine::distribution::SizeDistributionSpec;
 use repose_engine::material::{Cohesion, Interaction, MaterialSet};
 use serde::{Deserialize, Serialize};
 
-use crate::drill::{BedSpec, BinSpec, DrillSpec};
 use crate::soil::{
     check_contacts, coarse_grains, default_epsd_damping, default_rayleigh_fraction, max_radius,
-    non_negative, paper_soil_soil, paper_soil_steel, positive, Materials, RollingSpec, SettleSpec,
+    non_negative, paper_soil_soil, paper_soil_steel, positive, BedRecipe, BedSpec, BinSpec,
+    Materials, RollingSpec, SettleSpec, SurfaceReading,
 };
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
@@ -291,41 +291,39 @@ impl ShearSpec {
         self.rolling_model.engine_model(self.epsd_viscous_damping)
     }
 
-    /// The sample's recipe as a drilling bed: the box as the bin (walls as high as both
-    /// halves together), the sample height as the bed depth, the contacts without cohesion. Only its bed fields are used
-    /// ([`crate::drill::build_bed`], [`crate::drill::bed_key`]); its auger and drilling fields
-    /// are the `fast` drilling preset's, unused. A cached drilling bed with the same key is the
+    /// The sample's bed recipe (the drilling bed's, [`BedRecipe`]): the box as the bin (walls
+    /// as high as both halves together), the sample height as the bed depth, the contacts
+    /// without cohesion, the surface read as any bed's. A cached bed with the same key is the
     /// same sample.
-    pub fn bed_spec(&self) -> DrillSpec {
-        let mut d = DrillSpec::fast();
-        d.materials = self.materials;
+    pub fn bed_recipe(&self) -> BedRecipe {
         // Poured without cohesion (see the module docs).
-        d.soil_soil = Interaction {
+        let without_cohesion = |pair: Interaction| Interaction {
             cohesion: Cohesion::None,
-            ..self.soil_soil
+            ..pair
         };
-        d.soil_steel = Interaction {
-            cohesion: Cohesion::None,
-            ..self.soil_steel
-        };
-        d.rolling_model = self.rolling_model;
-        d.epsd_viscous_damping = self.epsd_viscous_damping;
-        d.particle = self.particle.clone();
-        d.bin = BinSpec {
-            size_x: self.shear_box.side,
-            size_y: self.shear_box.side,
-            height: self.shear_box.half_height + self.shear_box.upper_height,
-        };
-        d.bed = BedSpec {
-            depth: self.bed.height,
-            packing_fraction: self.bed.packing_fraction,
-            seed: self.bed.seed,
-            settle: self.bed.settle,
-        };
-        d.time_step_rayleigh_fraction = self.time_step_rayleigh_fraction;
-        d.wall_time_cap = self.wall_time_cap;
-        d.seed = self.seed;
-        d
+        BedRecipe {
+            materials: self.materials,
+            soil_soil: without_cohesion(self.soil_soil),
+            soil_steel: without_cohesion(self.soil_steel),
+            rolling_model: self.rolling_model,
+            epsd_viscous_damping: self.epsd_viscous_damping,
+            particle: self.particle.clone(),
+            bin: BinSpec {
+                size_x: self.shear_box.side,
+                size_y: self.shear_box.side,
+                height: self.shear_box.half_height + self.shear_box.upper_height,
+            },
+            bed: BedSpec {
+                depth: self.bed.height,
+                packing_fraction: self.bed.packing_fraction,
+                seed: self.bed.seed,
+                settle: self.bed.settle,
+            },
+            time_step_rayleigh_fraction: self.time_step_rayleigh_fraction,
+            wall_time_cap: self.wall_time_cap,
+            seed: self.seed,
+            surface: SurfaceReading::default(),
+        }
     }
 }
 
@@ -478,7 +476,7 @@ impl Spec for ShearSpec {
         }
         // The remaining sample fields (packing, settle criteria, time step, wall-time cap)
         // are the drilling bed's; its checks name the same paths under `bed.`.
-        self.bed_spec().validate_bed().map_err(|e| match e {
+        self.bed_recipe().validate().map_err(|e| match e {
             SpecError::Invalid { path, reason } => invalid(&rename_bed_path(&path), reason),
             other => other,
         })
