@@ -12,8 +12,7 @@
 use crate::sim::write_file;
 use anyhow::Result;
 use clap::Args;
-use repose_experiments::shear::{Control, ShearSpec};
-use repose_experiments::soil::run_on_bed;
+use repose_experiments::shear::ShearSpec;
 use repose_experiments::Spec;
 use std::io::Write;
 use std::path::PathBuf;
@@ -64,22 +63,14 @@ pub fn run(args: &ShearArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    crate::local_run::create_dirs(std::iter::once(out.as_path()).chain(args.bed_cache.as_deref()))?;
-    let pool = crate::local_run::thread_pool(args.threads)?;
-    let bar = crate::local_run::progress_bar(args.quiet, " {msg}");
-    let mut beds = crate::local_run::bed_cache(args.bed_cache.as_deref(), &bar);
     let started = std::time::Instant::now();
-    let run = pool.install(|| {
-        run_on_bed(&spec, beds.as_mut(), &mut |p| {
-            bar.set_position((p.fraction * 1000.0) as u64);
-            bar.set_message(format!(
-                "{} t={:.3} s, {} grains",
-                p.phase, p.time, p.particles
-            ));
-            Control::Continue
-        })
-    })?;
-    bar.finish_and_clear();
+    let run = crate::local_run::run_on_bed(
+        &spec,
+        out,
+        args.bed_cache.as_deref(),
+        args.threads,
+        args.quiet,
+    )?;
     let mut result = run.result.clone();
     // This command's wall time, the sample included when it was built here.
     result.wall_time_s = started.elapsed().as_secs_f64();

@@ -453,6 +453,42 @@ mod tests {
     }
 
     #[test]
+    fn a_parsed_spec_keys_its_bed_and_its_checkpoint_under_the_runs_seed() {
+        let drill = Kind::Drill.prepare(Some("fast"), &json!({})).unwrap();
+        let seeded = crate::drill::DrillSpec {
+            seed: 7,
+            ..crate::drill::DrillSpec::fast()
+        };
+        assert_eq!(drill.bed_key(7), Some(crate::drill::bed_key(&seeded)));
+        assert_ne!(drill.bed_key(7), drill.bed_key(8));
+        assert_eq!(drill.checkpoint_key(7), None);
+        let shear = Kind::Shear.prepare(Some("fast"), &json!({})).unwrap();
+        let seeded = crate::shear::ShearSpec {
+            seed: 7,
+            ..crate::shear::ShearSpec::fast()
+        };
+        assert_eq!(shear.bed_key(7), Some(crate::shear::sample_key(&seeded)));
+        assert_eq!(shear.checkpoint_key(7), None);
+        let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
+        let seeded = AorSpec {
+            seed: 7,
+            ..AorSpec::fast()
+        };
+        assert_eq!(
+            aor.checkpoint_key(7),
+            Some(crate::aor::checkpoint_key(&seeded))
+        );
+        assert_ne!(aor.checkpoint_key(7), aor.checkpoint_key(8));
+        assert_eq!(aor.bed_key(7), None);
+        let formula = json!({"inputs": {"x": 1.0}, "responses": {"y": "x"}});
+        let formula = Kind::Formula.prepare(None, &formula).unwrap();
+        assert_eq!(
+            (formula.bed_key(7), formula.checkpoint_key(7)),
+            (None, None)
+        );
+    }
+
+    #[test]
     fn table_lookup_runs_and_reports_misses_as_no_result() {
         let spec = json!({
             "values": {"a": 1.0},

@@ -85,12 +85,14 @@ pub trait Experiment {
     const KIND: Kind;
     /// The kind's spec, as a job carries it (its JSON form is what a job server stores).
     type Spec: Serialize;
-    /// The presets [`Experiment::preset`] offers, the default first; empty: none, a job gives
-    /// the spec whole.
-    const PRESETS: &'static [&'static str];
+    /// The presets [`Experiment::preset`] offers, the default first; empty (the default):
+    /// none, a job gives the spec whole.
+    const PRESETS: &'static [&'static str] = &[];
 
     /// The preset called `name` (one of [`Experiment::PRESETS`] or an alias of one), if any.
-    fn preset(name: &str) -> Option<Self::Spec>;
+    fn preset(_name: &str) -> Option<Self::Spec> {
+        None
+    }
 
     /// Parses and checks a complete spec document; the error names the offending field where
     /// it can ([`parse_spec`] does this for a serde spec with a `validate`).
@@ -117,6 +119,15 @@ pub trait Experiment {
     /// checkpoints.
     fn checkpoint_key(_spec: &Self::Spec, _seed: u64) -> Option<String> {
         None
+    }
+}
+
+/// `Err(Cancelled)` if `progress`, told that the run starts, cancels it: the first thing a
+/// kind that runs in an instant does.
+pub fn start(progress: &mut dyn FnMut(f64) -> Control) -> Result<(), ExperimentError> {
+    match progress(0.0) {
+        Control::Continue => Ok(()),
+        Control::Cancel => Err(ExperimentError::Cancelled),
     }
 }
 

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use crate::experiment::{
-    parse_spec, CheckpointStore, Experiment, ExperimentError, InvalidField, Kind, Outcome,
+    parse_spec, start, CheckpointStore, Experiment, ExperimentError, InvalidField, Kind, Outcome,
 };
 use crate::progress::Control;
 use crate::soil::BedStore;
@@ -124,11 +124,6 @@ pub struct TableLookup;
 impl Experiment for TableLookup {
     const KIND: Kind = Kind::TableLookup;
     type Spec = ReplaySpec;
-    const PRESETS: &'static [&'static str] = &[];
-
-    fn preset(_name: &str) -> Option<ReplaySpec> {
-        None
-    }
 
     fn parse(spec: &Value) -> Result<ReplaySpec, ExperimentError> {
         parse_spec(Kind::TableLookup, spec, ReplaySpec::validate)
@@ -142,9 +137,7 @@ impl Experiment for TableLookup {
         _beds: &mut dyn BedStore,
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
-        if progress(0.0) == Control::Cancel {
-            return Err(ExperimentError::Cancelled);
-        }
+        start(progress)?;
         let metrics = spec.look_up(seed).map_err(|e| ExperimentError::NoResult {
             message: e.to_string(),
             details: Value::Null,

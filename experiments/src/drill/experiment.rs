@@ -39,14 +39,7 @@ impl Experiment for Drill {
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
         spec.seed = seed;
-        let drill_error = |e: DrillError| match e {
-            DrillError::Cancelled => ExperimentError::Cancelled,
-            other => ExperimentError::InvalidSpec {
-                path: None,
-                message: other.to_string(),
-            },
-        };
-        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction)).map_err(drill_error)?;
+        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction))?;
         let details = serde_json::to_value(&run.result).expect("DrillResult serialises");
         match run.result.status {
             DrillStatus::Ok | DrillStatus::NotSettled => {}
@@ -78,5 +71,18 @@ impl Experiment for Drill {
         let mut spec = spec.clone();
         spec.seed = seed;
         Some(bed_key(&spec))
+    }
+}
+
+/// A run that cannot start or report: cancelled, or a spec the run refuses (no field named).
+impl From<DrillError> for ExperimentError {
+    fn from(e: DrillError) -> ExperimentError {
+        match e {
+            DrillError::Cancelled => ExperimentError::Cancelled,
+            other => ExperimentError::InvalidSpec {
+                path: None,
+                message: other.to_string(),
+            },
+        }
     }
 }

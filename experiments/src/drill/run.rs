@@ -322,9 +322,8 @@ impl OnBed for DrillSpec {
         run_drill_on_bed(self, bed, progress)
     }
 
-    fn note_bed(run: &mut DrillRun, reused: bool, bed_wall_time_s: f64) {
-        run.result.bed.reused = reused;
-        run.result.wall_time_s += bed_wall_time_s;
+    fn bed_of(run: &mut DrillRun) -> (&mut BedInfo, &mut f64) {
+        (&mut run.result.bed, &mut run.result.wall_time_s)
     }
 }
 
@@ -334,7 +333,7 @@ fn start_angle(seed: u64) -> f64 {
     (rng.symmetric() + 1.0) * std::f64::consts::PI
 }
 
-/// Drills `bed` (handed in: `bed.reused` is true until [`OnBed::note_bed`] says otherwise).
+/// Drills `bed` (handed in: `bed.reused` is true until [`run_on_bed`] says otherwise).
 fn drill(
     spec: &DrillSpec,
     bed: SettledBed,

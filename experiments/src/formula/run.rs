@@ -9,7 +9,7 @@ use serde_json::{json, Value};
 
 use super::error::FormulaFailure;
 use super::spec::FormulaSpec;
-use crate::experiment::{CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
+use crate::experiment::{start, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 use crate::soil::BedStore;
 
@@ -98,11 +98,6 @@ pub struct Formula;
 impl Experiment for Formula {
     const KIND: Kind = Kind::Formula;
     type Spec = FormulaSpec;
-    const PRESETS: &'static [&'static str] = &[];
-
-    fn preset(_name: &str) -> Option<FormulaSpec> {
-        None
-    }
 
     fn parse(spec: &Value) -> Result<FormulaSpec, ExperimentError> {
         FormulaSpec::from_json(spec).map_err(|e| ExperimentError::invalid_spec(&e))
@@ -116,9 +111,7 @@ impl Experiment for Formula {
         _beds: &mut dyn BedStore,
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
-        if progress(0.0) == Control::Cancel {
-            return Err(ExperimentError::Cancelled);
-        }
+        start(progress)?;
         let evaluation = spec.evaluate(seed)?;
         Ok(Outcome {
             details: json!({

@@ -38,14 +38,7 @@ impl Experiment for Shear {
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
         spec.seed = seed;
-        let shear_error = |e: ShearError| match e {
-            ShearError::Cancelled => ExperimentError::Cancelled,
-            other => ExperimentError::InvalidSpec {
-                path: None,
-                message: other.to_string(),
-            },
-        };
-        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction)).map_err(shear_error)?;
+        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction))?;
         // The series thinned: a job server takes at most 64 KiB of details.
         let details =
             serde_json::to_value(run.result.for_details()).expect("ShearResult serialises");
@@ -75,5 +68,18 @@ impl Experiment for Shear {
         let mut spec = spec.clone();
         spec.seed = seed;
         Some(sample_key(&spec))
+    }
+}
+
+/// A run that cannot start or report: cancelled, or a spec the run refuses (no field named).
+impl From<ShearError> for ExperimentError {
+    fn from(e: ShearError) -> ExperimentError {
+        match e {
+            ShearError::Cancelled => ExperimentError::Cancelled,
+            other => ExperimentError::InvalidSpec {
+                path: None,
+                message: other.to_string(),
+            },
+        }
     }
 }

@@ -408,13 +408,12 @@ impl OnBed for ShearSpec {
         run_shear_on_bed(self, bed, progress)
     }
 
-    fn note_bed(run: &mut ShearRun, reused: bool, bed_wall_time_s: f64) {
-        run.result.bed.reused = reused;
-        run.result.wall_time_s += bed_wall_time_s;
+    fn bed_of(run: &mut ShearRun) -> (&mut BedInfo, &mut f64) {
+        (&mut run.result.bed, &mut run.result.wall_time_s)
     }
 }
 
-/// Runs every stage on `bed` (handed in: `bed.reused` is true until [`OnBed::note_bed`] says
+/// Runs every stage on `bed` (handed in: `bed.reused` is true until [`run_on_bed`] says
 /// otherwise).
 fn shear(
     spec: &ShearSpec,

@@ -5,6 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::recipe::BedInfo;
 use crate::progress::{Control, Progress};
 
 /// Version of the bed recipe and of its stored form; part of every key, so a change to how
@@ -157,16 +158,15 @@ pub trait OnBed {
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<Self::Run, Self::Error>;
 
-    /// Records in `run` whether its bed was `reused`, and adds `bed_wall_time_s` (the time
-    /// building it took here, 0 when reused) to the run's wall time.
-    fn note_bed(run: &mut Self::Run, reused: bool, bed_wall_time_s: f64);
+    /// The run's facts about its bed and its wall time, s, for [`run_on_bed`] to complete.
+    fn bed_of(run: &mut Self::Run) -> (&mut BedInfo, &mut f64);
 }
 
 /// Builds the bed `spec` needs, or takes it from `beds` when they hold one under its key (a
 /// bed built here is kept there), then runs on it. Building takes the first
 /// [`OnBed::BED_SHARE`] of the progress; a reused bed takes none. The run is the same, bit for
-/// bit, whether the bed was built or reused, but for the `reused` flag [`OnBed::note_bed`]
-/// records and the wall time.
+/// bit, whether the bed was built or reused, but for its bed's `reused` flag, set here, and
+/// its wall time, which includes the bed's when it was built here.
 pub fn run_on_bed<S: OnBed>(
     spec: &S,
     beds: &mut dyn BedStore,
@@ -196,6 +196,8 @@ pub fn run_on_bed<S: OnBed>(
             ..p
         })
     })?;
-    S::note_bed(&mut run, reused, bed_wall_time_s);
+    let (bed, wall_time_s) = S::bed_of(&mut run);
+    bed.reused = reused;
+    *wall_time_s += bed_wall_time_s;
     Ok(run)
 }
