@@ -119,7 +119,7 @@ pub fn run(args: &AorArgs) -> Result<()> {
             if let Some(file) = &args.checkpoint {
                 // A checkpoint that cannot be written (full disk) costs only the restart
                 // point: the last one written stays whole, and the run goes on.
-                if let Err(e) = repose_worker::write_atomically(file, bytes) {
+                if let Err(e) = repose_stores::write_atomically(file, bytes) {
                     bar.suspend(|| {
                         eprintln!("warning: checkpoint not kept in {}: {e}", file.display())
                     });

@@ -10,12 +10,8 @@
 use crate::sim::write_file;
 use anyhow::{Context, Result};
 use clap::Args;
-use repose_experiments::catalog::BedStore;
-use repose_experiments::drill::{
-    bed_key, build_bed, run_drill_on_bed, Control, DrillSpec, StlDrill,
-};
+use repose_experiments::drill::{DrillSpec, StlDrill};
 use repose_experiments::Spec;
-use repose_worker::FileBedStore;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -76,48 +72,15 @@ pub fn run(args: &DrillArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    crate::local_run::create_dirs(std::iter::once(out.as_path()).chain(args.bed_cache.as_deref()))?;
-    let pool = crate::local_run::thread_pool(args.threads)?;
-    let bar = crate::local_run::progress_bar(args.quiet, " {msg}");
-    let key = bed_key(&spec);
-    let mut store = args.bed_cache.as_ref().map(FileBedStore::new);
-    let cached = store.as_mut().and_then(|s| s.get(&key));
-    let reused = cached.is_some();
-    let bed_share = if cached.is_some() { 0.0 } else { 0.25 };
     let started = std::time::Instant::now();
-    let run = pool.install(|| -> Result<_> {
-        let bed = match cached {
-            Some(bed) => bed,
-            None => {
-                let bed = build_bed(&spec, &mut |p| {
-                    bar.set_position((bed_share * p.fraction * 1000.0) as u64);
-                    bar.set_message(format!(
-                        "bed t={:.3} s, {} grains, kinetic energy {:.1e}",
-                        p.time, p.particles, p.kinetic_energy_ratio
-                    ));
-                    Control::Continue
-                })?;
-                if let Some(store) = &store {
-                    store.write(&bed).with_context(|| {
-                        format!("cannot keep the bed in {}", store.dir().display())
-                    })?;
-                }
-                bed
-            }
-        };
-        Ok(run_drill_on_bed(&spec, bed, &mut |p| {
-            let fraction = bed_share + (1.0 - bed_share) * p.fraction;
-            bar.set_position((fraction * 1000.0) as u64);
-            bar.set_message(format!(
-                "{} t={:.3} s, {} grains",
-                p.phase, p.time, p.particles
-            ));
-            Control::Continue
-        })?)
-    })?;
-    bar.finish_and_clear();
+    let run = crate::local_run::run_on_bed(
+        &spec,
+        out,
+        args.bed_cache.as_deref(),
+        args.threads,
+        args.quiet,
+    )?;
     let mut result = run.result.clone();
-    result.bed.reused = reused;
     // This command's wall time, the bed included when it was built here.
     result.wall_time_s = started.elapsed().as_secs_f64();
 

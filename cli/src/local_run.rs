@@ -6,7 +6,10 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use repose_experiments::progress::Control;
+use repose_experiments::soil::{BedStore, NoBedStore, OnBed, SettledBed};
 use repose_experiments::Spec;
+use repose_stores::FileBedStore;
 
 /// The spec `--preset`, `--spec FILE` (merged over the preset) and `--set` assignments give,
 /// in that order; not yet validated (a command may add to it first).
@@ -56,4 +59,70 @@ pub fn progress_bar(quiet: bool, message_template: &str) -> ProgressBar {
         .expect("valid template"),
     );
     bar
+}
+
+/// A local run on a settled bed (`repose drill`, `repose shear`): `out` and `bed_cache` made,
+/// then [`run_on_bed`](repose_experiments::soil::run_on_bed) on a pool of `threads` threads
+/// with a progress bar (hidden with `quiet`), the bed taken from or kept in `--bed-cache`.
+pub fn run_on_bed<S>(
+    spec: &S,
+    out: &Path,
+    bed_cache: Option<&Path>,
+    threads: Option<usize>,
+    quiet: bool,
+) -> Result<S::Run>
+where
+    S: OnBed + Sync,
+    S::Run: Send,
+    S::Error: std::error::Error + Send + Sync + 'static,
+{
+    create_dirs(std::iter::once(out).chain(bed_cache))?;
+    let pool = thread_pool(threads)?;
+    let bar = progress_bar(quiet, " {msg}");
+    let mut beds = cache_of_beds(bed_cache, &bar);
+    let run = pool.install(|| {
+        repose_experiments::soil::run_on_bed(spec, beds.as_mut(), &mut |p| {
+            bar.set_position((p.fraction * 1000.0) as u64);
+            bar.set_message(format!(
+                "{} t={:.3} s, {} grains",
+                p.phase, p.time, p.particles
+            ));
+            Control::Continue
+        })
+    })?;
+    bar.finish_and_clear();
+    Ok(run)
+}
+
+/// The settled beds of `--bed-cache DIR` (none without the flag): a bed found there is reused,
+/// a bed built is kept there. A bed that cannot be kept costs only its reuse: a warning (above
+/// `bar`), and the run goes on.
+fn cache_of_beds<'a>(dir: Option<&Path>, bar: &'a ProgressBar) -> Box<dyn BedStore + Send + 'a> {
+    match dir {
+        Some(dir) => Box::new(BedCache {
+            store: FileBedStore::new(dir),
+            bar,
+        }),
+        None => Box::new(NoBedStore),
+    }
+}
+
+/// [`cache_of_beds`]'s store: the file store, its write failures shown as warnings.
+struct BedCache<'a> {
+    store: FileBedStore,
+    bar: &'a ProgressBar,
+}
+
+impl BedStore for BedCache<'_> {
+    fn get(&mut self, key: &str) -> Option<SettledBed> {
+        self.store.get(key)
+    }
+
+    fn put(&mut self, bed: &SettledBed) {
+        if let Err(e) = self.store.write(bed) {
+            let dir = self.store.dir().display();
+            self.bar
+                .suspend(|| eprintln!("warning: bed not kept in {dir}: {e}"));
+        }
+    }
 }

@@ -10,12 +10,10 @@
 //! same sample parameters.
 
 use crate::sim::write_file;
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
-use repose_experiments::catalog::BedStore;
-use repose_experiments::shear::{build_sample, run_shear_on_bed, sample_key, Control, ShearSpec};
+use repose_experiments::shear::ShearSpec;
 use repose_experiments::Spec;
-use repose_worker::FileBedStore;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -65,47 +63,15 @@ pub fn run(args: &ShearArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    crate::local_run::create_dirs(std::iter::once(out.as_path()).chain(args.bed_cache.as_deref()))?;
-    let pool = crate::local_run::thread_pool(args.threads)?;
-    let bar = crate::local_run::progress_bar(args.quiet, " {msg}");
-    let key = sample_key(&spec);
-    let mut store = args.bed_cache.as_ref().map(FileBedStore::new);
-    let cached = store.as_mut().and_then(|s| s.get(&key));
-    let reused = cached.is_some();
-    let bed_share = if reused { 0.0 } else { 0.2 };
     let started = std::time::Instant::now();
-    let report = |fraction: f64, phase: &str, time: f64, particles: usize| {
-        bar.set_position((fraction * 1000.0) as u64);
-        bar.set_message(format!("{phase} t={time:.3} s, {particles} grains"));
-        Control::Continue
-    };
-    let run = pool.install(|| -> Result<_> {
-        let bed = match cached {
-            Some(bed) => bed,
-            None => {
-                let bed = build_sample(&spec, &mut |p| {
-                    report(bed_share * p.fraction, p.phase, p.time, p.particles)
-                })?;
-                if let Some(store) = &store {
-                    store.write(&bed).with_context(|| {
-                        format!("cannot keep the sample in {}", store.dir().display())
-                    })?;
-                }
-                bed
-            }
-        };
-        Ok(run_shear_on_bed(&spec, bed, &mut |p| {
-            report(
-                bed_share + (1.0 - bed_share) * p.fraction,
-                p.phase,
-                p.time,
-                p.particles,
-            )
-        })?)
-    })?;
-    bar.finish_and_clear();
+    let run = crate::local_run::run_on_bed(
+        &spec,
+        out,
+        args.bed_cache.as_deref(),
+        args.threads,
+        args.quiet,
+    )?;
     let mut result = run.result.clone();
-    result.bed.reused = reused;
     // This command's wall time, the sample included when it was built here.
     result.wall_time_s = started.elapsed().as_secs_f64();
 

@@ -7,10 +7,12 @@
 pub mod aor;
 pub mod catalog;
 pub mod drill;
+pub mod experiment;
 pub mod formula;
 pub mod progress;
 pub mod replay;
 pub mod shear;
+pub mod soil;
 mod spec_path;
 mod svg;
 

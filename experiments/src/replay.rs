@@ -9,6 +9,13 @@
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::experiment::{
+    parse_spec, start, CheckpointStore, Experiment, ExperimentError, InvalidField, Kind, Outcome,
+};
+use crate::progress::Control;
+use crate::soil::BedStore;
 
 /// Why a replay spec is unusable or has no row for the requested values.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -98,6 +105,50 @@ impl ReplaySpec {
             .filter(|(name, _)| !self.values.contains_key(*name))
             .map(|(name, value)| (name.clone(), *value))
             .collect())
+    }
+}
+
+impl InvalidField for ReplayError {
+    fn path(&self) -> Option<&str> {
+        match self {
+            ReplayError::Invalid { path, .. } => Some(path),
+            ReplayError::NoMatch { .. } => None,
+        }
+    }
+}
+
+/// The `table_lookup` kind: no presets, a spec is given whole.
+#[derive(Debug, Clone, Copy)]
+pub struct TableLookup;
+
+impl Experiment for TableLookup {
+    const KIND: Kind = Kind::TableLookup;
+    type Spec = ReplaySpec;
+
+    fn parse(spec: &Value) -> Result<ReplaySpec, ExperimentError> {
+        parse_spec(Kind::TableLookup, spec, ReplaySpec::validate)
+    }
+
+    /// The matching row's responses; no row matching is no result (under any seed).
+    fn run(
+        spec: ReplaySpec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        _beds: &mut dyn BedStore,
+        _checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        start(progress)?;
+        let metrics = spec.look_up(seed).map_err(|e| ExperimentError::NoResult {
+            message: e.to_string(),
+            details: Value::Null,
+            another_seed_may_help: false,
+        })?;
+        Ok(Outcome {
+            details: serde_json::json!({ "replay": true, "values": spec.values }),
+            metrics,
+            pictures: Vec::new(),
+            hold_s: spec.hold_s,
+        })
     }
 }
 

@@ -7,6 +7,8 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 use serde_json::Value;
 
+use crate::experiment::InvalidField;
+
 /// Why a spec (or a `--set`) is not usable. The message names the path.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SpecError {
@@ -34,6 +36,15 @@ pub enum SpecError {
     /// Not a valid spec document (the message names the spec type).
     #[error("{0}")]
     Parse(String),
+}
+
+impl InvalidField for SpecError {
+    fn path(&self) -> Option<&str> {
+        match self {
+            SpecError::Invalid { path, .. } => Some(path),
+            _ => None,
+        }
+    }
 }
 
 /// What every experiment spec offers: its presets, JSON, the dotted-path `--set` and

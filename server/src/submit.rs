@@ -12,7 +12,7 @@ use repose_doe::design::{
     DesignError, Factor,
 };
 use repose_doe::{FitError, Model, ModelKind};
-use repose_experiments::catalog::{prepare_spec, validate_spec, ExperimentError};
+use repose_experiments::catalog::{ExperimentError, ExperimentSpec, Kind};
 use serde_json::Value;
 
 use crate::error::AppError;
@@ -155,7 +155,9 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     }
     // Before the design is built: `centre_points: 1e12` must not allocate terabytes.
     check_design_size(&request)?;
-    let template = prepare_template(&request)?;
+    // The kind is parsed once; the template and every run's spec are checked as that kind.
+    let kind = Kind::parse(&request.experiment.kind).map_err(experiment_error)?;
+    let template = prepare_template(&request, kind)?;
     let factors = validate_factors(&request, &template)?;
     let names: Vec<&str> = factors.iter().map(|f| f.name.as_str()).collect();
     let model = model_kind(request.model)
@@ -210,7 +212,7 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
                 FactorSpec::assignments(&request.factors, &natural),
             )
             .map_err(|err| AppError::invalid("factors", err.to_string()))?;
-            check_run_spec(&request, &spec, &natural)?;
+            check_run_spec(&request, kind, &spec, &natural)?;
             Ok(PlannedRun {
                 run_index: run.run_index,
                 design_row: randomized.standard_order()[run.design_row],
@@ -232,15 +234,18 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
     })
 }
 
-/// The complete experiment spec (preset + overrides), checked by the experiment catalog.
-fn prepare_template(request: &BatchRequest) -> Result<Value, AppError> {
+/// The complete experiment spec of `kind` (preset + overrides), checked by the experiment
+/// catalog, as the JSON the runs are written into.
+fn prepare_template(request: &BatchRequest, kind: Kind) -> Result<Value, AppError> {
     let experiment = &request.experiment;
-    prepare_spec(
-        &experiment.kind,
-        experiment.preset.as_deref(),
-        &experiment.spec,
-    )
-    .map_err(|err| match err {
+    kind.prepare(experiment.preset.as_deref(), &experiment.spec)
+        .map(|spec| spec.to_value())
+        .map_err(experiment_error)
+}
+
+/// A catalog error at submission, blaming the request field to fix.
+fn experiment_error(err: ExperimentError) -> AppError {
+    match err {
         ExperimentError::UnknownKind { .. } => {
             AppError::invalid("experiment.kind", err.to_string())
         }
@@ -252,13 +257,18 @@ fn prepare_template(request: &BatchRequest) -> Result<Value, AppError> {
             ..
         } => AppError::invalid(format!("experiment.spec.{path}"), err.to_string()),
         _ => AppError::invalid("experiment.spec", err.to_string()),
-    })
+    }
 }
 
 /// A run's spec must still be valid with its factor values written in (a friction range may
 /// reach below zero); the error blames the factor whose path the experiment rejected.
-fn check_run_spec(request: &BatchRequest, spec: &Value, natural: &[f64]) -> Result<(), AppError> {
-    let Err(err) = validate_spec(&request.experiment.kind, spec) else {
+fn check_run_spec(
+    request: &BatchRequest,
+    kind: Kind,
+    spec: &Value,
+    natural: &[f64],
+) -> Result<(), AppError> {
+    let Err(err) = ExperimentSpec::parse(kind, spec) else {
         return Ok(());
     };
     let blamed = match &err {

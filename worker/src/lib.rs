@@ -33,20 +33,16 @@ use std::time::{Duration, Instant};
 use rand::Rng;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
 use repose_experiments::catalog::{
-    checkpoint_key_of_run, run_experiment_with_stores, CheckpointStore, ExperimentError,
-    NoCheckpoints, Outcome,
+    BedStore, CheckpointStore, ExperimentError, ExperimentSpec, NoBedStore, NoCheckpoints, Outcome,
 };
 use repose_experiments::progress::Control;
 use tokio::sync::watch;
 use uuid::Uuid;
 
-mod beds;
-mod checkpoints;
 mod client;
 
-pub use beds::FileBedStore;
-pub use checkpoints::{write_atomically, FileCheckpointStore};
 pub use client::{CallError, Client};
+use repose_stores::{FileBedStore, FileCheckpointStore};
 
 /// Worker settings; the command line fills this from its flags.
 #[derive(Debug, Clone)]
@@ -381,6 +377,13 @@ struct JobSignals {
 async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
     let signals = Arc::new(JobSignals::default());
     let started = Instant::now();
+    // The job's kind and spec, parsed once: the run and its checkpoint's key both use it (a
+    // spec this build cannot parse fails the job like a run that cannot start).
+    let parsed = ExperimentSpec::parse_job(&job.kind, &job.spec);
+    let checkpoint_key = parsed
+        .as_ref()
+        .ok()
+        .and_then(|spec| spec.checkpoint_key(job.seed));
 
     let heartbeat = tokio::spawn(heartbeat_loop(
         context.client.clone(),
@@ -399,17 +402,19 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
         })
     };
 
-    let outcome = {
-        let signals = signals.clone();
-        let threads = context.config.threads;
-        let (kind, spec, seed) = (job.kind.clone(), job.spec.clone(), job.seed);
-        let stores = Stores {
-            bed_cache: context.config.bed_cache.clone(),
-            checkpoint_dir: context.config.checkpoint_dir.clone(),
-            checkpoint_every: context.config.checkpoint_every,
-        };
-        tokio::task::spawn_blocking(move || simulate(&kind, &spec, seed, threads, stores, &signals))
-            .await
+    let outcome = match parsed {
+        Ok(spec) => {
+            let signals = signals.clone();
+            let (threads, seed) = (context.config.threads, job.seed);
+            let stores = Stores {
+                bed_cache: context.config.bed_cache.clone(),
+                checkpoint_dir: context.config.checkpoint_dir.clone(),
+                checkpoint_every: context.config.checkpoint_every,
+            };
+            tokio::task::spawn_blocking(move || simulate(spec, seed, threads, stores, &signals))
+                .await
+        }
+        Err(error) => Ok(Err(error)),
     };
     // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
     if let Ok(Ok(outcome)) = &outcome {
@@ -428,7 +433,7 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
         tracing::warn!(job = %job.job_id, "lease lost (batch cancelled or lease expired); result dropped");
         // The server said stop: the batch was cancelled or the run has its result from
         // elsewhere, so nobody will continue this run from its checkpoint.
-        drop_checkpoint(context, &job);
+        drop_checkpoint(context, &job, checkpoint_key.as_deref());
         return JobEnd::Abandoned;
     }
     if signals.cancel.load(Ordering::SeqCst) {
@@ -622,15 +627,13 @@ async fn heartbeat_loop(
     }
 }
 
-/// Deletes the checkpoint `job`'s run keeps in the checkpoint directory, if any.
-fn drop_checkpoint(context: &SlotContext, job: &ClaimResponse) {
-    let Some(dir) = &context.config.checkpoint_dir else {
+/// Deletes the checkpoint `job`'s run keeps in the checkpoint directory under `key`, if any.
+fn drop_checkpoint(context: &SlotContext, job: &ClaimResponse, key: Option<&str>) {
+    let (Some(dir), Some(key)) = (&context.config.checkpoint_dir, key) else {
         return;
     };
-    if let Ok(Some(key)) = checkpoint_key_of_run(&job.kind, &job.spec, job.seed) {
-        FileCheckpointStore::new(dir, context.config.checkpoint_every).remove(&key);
-        tracing::info!(job = %job.job_id, key, "dropped the checkpoint (if any) of a run nobody will continue");
-    }
+    FileCheckpointStore::new(dir, context.config.checkpoint_every).remove(key);
+    tracing::info!(job = %job.job_id, key, "dropped the checkpoint (if any) of a run nobody will continue");
 }
 
 /// Where a job's simulation keeps what outlives it.
@@ -643,8 +646,7 @@ struct Stores {
 
 /// Runs the experiment on a fresh pool of `threads` threads (results do not depend on it).
 fn simulate(
-    kind: &str,
-    spec: &serde_json::Value,
+    spec: ExperimentSpec,
     seed: u64,
     threads: usize,
     stores: Stores,
@@ -656,18 +658,16 @@ fn simulate(
         .map_err(|e| ExperimentError::Local {
             message: format!("cannot start {threads} simulation threads: {e}"),
         })?;
-    let mut beds: Box<dyn repose_experiments::catalog::BedStore + Send> = match stores.bed_cache {
+    let mut beds: Box<dyn BedStore + Send> = match stores.bed_cache {
         Some(dir) => Box::new(FileBedStore::new(dir)),
-        None => Box::new(repose_experiments::catalog::NoBedStore),
+        None => Box::new(NoBedStore),
     };
     let mut checkpoints: Box<dyn CheckpointStore + Send> = match stores.checkpoint_dir {
         Some(dir) => Box::new(FileCheckpointStore::new(dir, stores.checkpoint_every)),
         None => Box::new(NoCheckpoints),
     };
     pool.install(|| {
-        run_experiment_with_stores(
-            kind,
-            spec,
+        spec.run(
             seed,
             &mut |fraction| {
                 signals
@@ -760,12 +760,13 @@ mod tests {
     #[test]
     fn simulate_runs_a_replay_and_honours_cancel() {
         let spec = serde_json::json!({"values": {"a": 1.0}, "rows": [{"a": 1.0, "y": 2.0}]});
+        let spec = ExperimentSpec::parse_job("table_lookup", &spec).unwrap();
         let signals = JobSignals::default();
-        let outcome = simulate("table_lookup", &spec, 0, 1, Stores::default(), &signals).unwrap();
+        let outcome = simulate(spec.clone(), 0, 1, Stores::default(), &signals).unwrap();
         assert_eq!(outcome.metrics["y"], 2.0);
         signals.cancel.store(true, Ordering::SeqCst);
         assert!(matches!(
-            simulate("table_lookup", &spec, 0, 1, Stores::default(), &signals),
+            simulate(spec, 0, 1, Stores::default(), &signals),
             Err(ExperimentError::Cancelled)
         ));
     }

@@ -36,6 +36,7 @@
 //! ```
 
 mod checkpoint;
+mod experiment;
 mod ladder;
 mod measure;
 mod picture;
@@ -43,7 +44,9 @@ mod rest;
 mod run;
 mod spec;
 
+pub use crate::soil::{MaterialProps, Materials, RollingSpec};
 pub use checkpoint::{checkpoint_key, AorCheckpoint, CheckpointError};
+pub use experiment::Aor;
 pub use ladder::{ladder_svg, LadderPoint};
 pub use measure::{
     measure_angle_of_repose, AngleOfRepose, DirectionProfile, FlankFit, MeasureError,
@@ -56,9 +59,7 @@ pub use run::{
     AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SaveCheckpoint,
     SettleCheck,
 };
-pub(crate) use spec::check_contacts;
 pub use spec::{
-    sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry,
-    MaterialProps, Materials, Protocol, RollingSpec, SettleSpec, SpecError, MASS_LADDER,
-    PAPER_SAND_SIEVE_CURVE, PRESETS, SIZE_LADDER,
+    sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, Protocol,
+    SettleSpec, SpecError, MASS_LADDER, PAPER_SAND_SIEVE_CURVE, PRESETS, SIZE_LADDER,
 };

@@ -68,10 +68,14 @@
 
 use repose_engine::contact::RollingModel;
 use repose_engine::distribution::{SieveRow, SizeDistribution, SizeDistributionSpec};
-use repose_engine::material::{Cohesion, DampingLaw, Interaction, Material, MaterialSet};
+use repose_engine::material::{DampingLaw, Interaction, MaterialSet};
 use serde::{Deserialize, Serialize};
 
 use super::measure::MeasureSettings;
+use crate::soil::{
+    check_contacts, check_rayleigh_fraction, default_epsd_damping, default_rayleigh_fraction,
+    paper_soil_soil, paper_soil_steel, positive, Materials, RollingSpec,
+};
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
 
@@ -83,76 +87,6 @@ pub enum Protocol {
     Funnel,
     /// Grains fill a steel tube standing on the plate; the tube is lifted and the heap slumps.
     LiftedCylinder,
-}
-
-/// Rolling-resistance model (see [`repose_engine::contact::RollingModel`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RollingSpec {
-    /// EDEM's default constant directional torque, lever arm = particle radius.
-    Cdt,
-    /// Elastic-plastic spring-dashpot (Ai et al. 2011), with `epsd_viscous_damping`.
-    Epsd,
-}
-
-/// Bulk properties of one material (Table 1).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MaterialProps {
-    /// kg/m³
-    pub density: f64,
-    /// Young's modulus, Pa.
-    pub youngs_modulus: f64,
-    /// Poisson's ratio.
-    pub poisson: f64,
-}
-
-/// The two materials of the test.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Materials {
-    pub soil: MaterialProps,
-    pub steel: MaterialProps,
-}
-
-impl Default for Materials {
-    fn default() -> Self {
-        let props = |m: Material| MaterialProps {
-            density: m.density,
-            youngs_modulus: m.youngs_modulus,
-            poisson: m.poisson,
-        };
-        Materials {
-            soil: props(Material::paper_soil()),
-            steel: props(Material::paper_steel()),
-        }
-    }
-}
-
-impl Materials {
-    /// The engine material set (soil = material 0, steel = material 1) with these bulk
-    /// properties and the given contact pairs.
-    pub fn material_set(&self, soil_soil: Interaction, soil_steel: Interaction) -> MaterialSet {
-        let mut set = MaterialSet::paper(soil_soil, soil_steel);
-        for (m, props) in set.materials.iter_mut().zip([self.soil, self.steel]) {
-            m.density = props.density;
-            m.youngs_modulus = props.youngs_modulus;
-            m.poisson = props.poisson;
-        }
-        set
-    }
-}
-
-impl RollingSpec {
-    /// The engine's rolling model (`epsd_viscous_damping` is used by EPSD only).
-    pub fn engine_model(self, epsd_viscous_damping: f64) -> RollingModel {
-        match self {
-            RollingSpec::Cdt => RollingModel::ConstantDirectionalTorque,
-            RollingSpec::Epsd => RollingModel::ElasticPlasticSpringDashpot {
-                viscous_damping: epsd_viscous_damping,
-            },
-        }
-    }
 }
 
 /// The paper's funnel. Only wall inclination (60°), outlet diameter (17 mm) and outlet height
@@ -392,9 +326,6 @@ pub struct AorSpec {
     pub measure: MeasureSettings,
 }
 
-fn default_epsd_damping() -> f64 {
-    0.3
-}
 fn default_inlet_speed() -> f64 {
     0.5
 }
@@ -403,9 +334,6 @@ fn default_max_escaped() -> f64 {
 }
 fn default_max_held_up() -> f64 {
     0.05
-}
-fn default_rayleigh_fraction() -> f64 {
-    0.2
 }
 
 /// Names of the presets accepted by [`AorSpec::preset`].
@@ -481,18 +409,8 @@ impl AorSpec {
         AorSpec {
             protocol: Protocol::Funnel,
             materials: Materials::default(),
-            soil_soil: Interaction {
-                restitution: 0.45,
-                static_friction: 0.442,
-                rolling_friction: 0.140,
-                cohesion: Cohesion::None,
-            },
-            soil_steel: Interaction {
-                restitution: 0.40,
-                static_friction: 0.305,
-                rolling_friction: 0.50,
-                cohesion: Cohesion::None,
-            },
+            soil_soil: paper_soil_soil(),
+            soil_steel: paper_soil_steel(),
             rolling_model: RollingSpec::Cdt,
             epsd_viscous_damping: default_epsd_damping(),
             damping_law: DampingLaw::default(),
@@ -593,65 +511,6 @@ impl AorSpec {
     }
 }
 
-/// Checks the contact coefficients and bulk properties both soil experiments share (the engine
-/// would reject them later, without naming the spec field): restitution in (0, 1], frictions
-/// finite and >= 0, density and Young's modulus > 0, Poisson's ratio in (-1, 0.5).
-/// The error is `(dotted path, reason)`.
-pub(crate) fn check_contacts(
-    materials: &Materials,
-    soil_soil: &Interaction,
-    soil_steel: &Interaction,
-) -> Result<(), (String, String)> {
-    for (name, pair) in [("soil_soil", soil_soil), ("soil_steel", soil_steel)] {
-        let e = pair.restitution;
-        if !(e > 0.0 && e <= 1.0) {
-            return Err((
-                format!("{name}.restitution"),
-                format!("must be in (0, 1], got {e}"),
-            ));
-        }
-        for (field, v) in [
-            ("static_friction", pair.static_friction),
-            ("rolling_friction", pair.rolling_friction),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err((
-                    format!("{name}.{field}"),
-                    format!("must be finite and >= 0, got {v}"),
-                ));
-            }
-        }
-        let cohesion = match pair.cohesion {
-            Cohesion::None => None,
-            Cohesion::Linear { energy_density } => Some(("energy_density", energy_density)),
-            Cohesion::Jkr { surface_energy } => Some(("surface_energy", surface_energy)),
-        };
-        if let Some((field, v)) = cohesion.filter(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
-            return Err((
-                format!("{name}.cohesion.{field}"),
-                format!("must be finite and >= 0, got {v}"),
-            ));
-        }
-    }
-    for (name, m) in [("soil", &materials.soil), ("steel", &materials.steel)] {
-        for (field, v) in [("density", m.density), ("youngs_modulus", m.youngs_modulus)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err((
-                    format!("materials.{name}.{field}"),
-                    format!("must be finite and > 0, got {v}"),
-                ));
-            }
-        }
-        if !(m.poisson > -1.0 && m.poisson < 0.5) {
-            return Err((
-                format!("materials.{name}.poisson"),
-                format!("must be in (-1, 0.5), got {}", m.poisson),
-            ));
-        }
-    }
-    Ok(())
-}
-
 impl Spec for AorSpec {
     const NAME: &'static str = "an AorSpec";
     const PRESETS: &'static [&'static str] = &PRESETS;
@@ -680,15 +539,7 @@ impl Spec for AorSpec {
     /// Checks what the engine does not check itself (the engine validates materials, meshes and
     /// the factory when the world is built).
     fn validate(&self) -> Result<(), SpecError> {
-        let positive = |path: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(invalid(path, format!("must be finite and > 0, got {v}")))
-            }
-        };
-        check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)
-            .map_err(|(path, reason)| invalid(&path, reason))?;
+        check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)?;
         positive("total_mass", self.total_mass)?;
         positive("mass_rate", self.mass_rate)?;
         positive("time_cap", self.time_cap)?;
@@ -733,13 +584,7 @@ impl Spec for AorSpec {
                 return Err(invalid(path, "must be in [0, 1]"));
             }
         }
-        let f = self.time_step_rayleigh_fraction;
-        if !(f > 0.0 && f <= 1.0) {
-            return Err(invalid(
-                "time_step_rayleigh_fraction",
-                format!("must be in (0, 1], got {f}"),
-            ));
-        }
+        check_rayleigh_fraction(self.time_step_rayleigh_fraction)?;
         if !["steel", "soil"].contains(&self.base.material.as_str()) {
             return Err(invalid(
                 "base.material",

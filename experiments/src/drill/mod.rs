@@ -13,25 +13,25 @@
 //! No file I/O here: the bed and the pictures are returned as data and text.
 
 mod bed;
+mod experiment;
 mod measure;
 mod picture;
 mod run;
 mod spec;
 
 pub use crate::progress::Control;
-pub use bed::{bed_key, build_bed, BedProgress, SettledBed, SettledBy, BED_FORMAT};
-pub(crate) use bed::{kinetic_energy_ratio, setup, Setup};
-pub use measure::{
-    height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
-    HoleMeasurement, MeasureError,
+pub use crate::soil::{
+    height_field, surface_level, BedInfo, BedProgress, BedSpec, BinSpec, HeightField, MeasureError,
+    SettleSpec, SettledBed, SettledBy, BED_FORMAT,
 };
+pub use bed::{bed_key, build_bed};
+pub use experiment::Drill;
+pub use measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 pub use picture::{forces_svg, section_svg};
 pub use run::{
-    run_drill, run_drill_on_bed, BedInfo, DrillError, DrillResult, DrillRun, DrillStatus,
-    LoadSample, Progress,
+    run_drill, run_drill_on_bed, DrillError, DrillResult, DrillRun, DrillStatus, LoadSample,
+    Progress,
 };
-pub(crate) use spec::max_radius;
 pub use spec::{
-    AugerGeometry, BedSpec, BinSpec, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SettleSpec,
-    SpecError, StlDrill, PRESETS,
+    AugerGeometry, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SpecError, StlDrill, PRESETS,
 };

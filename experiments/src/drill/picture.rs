@@ -5,8 +5,8 @@ use std::fmt::Write as _;
 
 use crate::svg::{escape, header, tick_step, trim};
 
-use super::measure::HeightField;
 use super::run::{DrillResult, DrillRun};
+use crate::soil::HeightField;
 
 const ML: f64 = 70.0;
 const MR: f64 = 30.0;

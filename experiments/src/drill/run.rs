@@ -15,17 +15,15 @@ use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, GeometryId, World};
 use serde::{Deserialize, Serialize};
 
-use super::bed::{
-    bed_key, bin_world, build_bed, is_stable, kinetic_energy_ratio, setup, SettledBed, SettledBy,
-    SplitMix,
-};
-use super::measure::{
-    height_field, measure_hole, solid_volume_in_cylinder, surface_level, HeightField,
-    HoleMeasurement,
-};
+use super::bed::{bed_key, build_bed};
+use super::measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
 pub use crate::progress::{Control, Progress};
+use crate::soil::{
+    bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
+    BedError, BedInfo, HeightField, NoBedStore, OnBed, SettledBed, SettledBy, SplitMix,
+};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
 /// did not settle is a [`DrillResult`] with a non-`ok` status, not an error).
@@ -47,7 +45,21 @@ pub enum DrillError {
     WallTimeCap { phase: &'static str, cap_s: f64 },
 }
 
-pub(crate) fn build_error(part: &'static str, e: impl std::fmt::Display) -> DrillError {
+impl From<BedError> for DrillError {
+    fn from(e: BedError) -> DrillError {
+        match e {
+            BedError::Spec(e) => DrillError::Spec(e),
+            BedError::Build { part, reason } => DrillError::Build { part, reason },
+            BedError::Cancelled => DrillError::Cancelled,
+            BedError::WallTimeCap { cap_s } => DrillError::WallTimeCap {
+                phase: "bed",
+                cap_s,
+            },
+        }
+    }
+}
+
+fn build_error(part: &'static str, e: impl std::fmt::Display) -> DrillError {
     DrillError::Build {
         part,
         reason: e.to_string(),
@@ -81,19 +93,6 @@ pub struct LoadSample {
     pub torque_nm: f64,
     /// Vertical force of the soil on the auger, N (positive: upward, resisting the feed).
     pub axial_force_n: f64,
-}
-
-/// Facts about the bed the run used.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BedInfo {
-    pub key: String,
-    pub particles: usize,
-    pub settled: bool,
-    /// True if the bed was handed in (e.g. from a cache) rather than built by this call.
-    pub reused: bool,
-    pub surface_z_mm: f64,
-    pub simulated_time_s: f64,
-    pub wall_time_s: f64,
 }
 
 /// The result of one drilling run (serde; what `result.json` holds). Hole lengths in mm,
@@ -264,33 +263,18 @@ impl DrillRun {
     }
 }
 
-/// Builds the bed and drills it: [`build_bed`] then [`run_drill_on_bed`]. The bed takes the first
-/// quarter of the progress fraction.
+/// Builds the bed and drills it: [`build_bed`] then [`run_drill_on_bed`] ([`run_on_bed`]
+/// without a store). The bed takes the first quarter of the progress fraction.
 pub fn run_drill(
     spec: &DrillSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
-    let started = Instant::now();
-    let bed = build_bed(spec, &mut |p| {
-        progress(Progress {
-            fraction: 0.25 * p.fraction,
-            phase: "bed",
-            time: p.time,
-            particles: p.particles,
-        })
-    })?;
-    let mut run = drill(spec, bed, false, &mut |p| {
-        progress(Progress {
-            fraction: 0.25 + 0.75 * p.fraction,
-            ..p
-        })
-    })?;
-    run.result.wall_time_s = started.elapsed().as_secs_f64();
-    Ok(run)
+    run_on_bed(spec, &mut NoBedStore, progress)
 }
 
 /// Drills a bed built earlier by [`build_bed`] for a spec with the same [`bed_key`] (e.g. read
-/// back from a cache). Same outcome, bit for bit, as [`run_drill`] on that spec.
+/// back from a cache). Same outcome, bit for bit, as [`run_drill`] on that spec, but for
+/// `bed.reused` (true here) and the wall time (without the bed's).
 pub fn run_drill_on_bed(
     spec: &DrillSpec,
     bed: SettledBed,
@@ -303,7 +287,44 @@ pub fn run_drill_on_bed(
             found: bed.key,
         });
     }
-    drill(spec, bed, true, progress)
+    drill(spec, bed, progress)
+}
+
+/// The drilling test runs on a settled bed, built in the first quarter of the progress.
+impl OnBed for DrillSpec {
+    type Run = DrillRun;
+    type Error = DrillError;
+    const BED_SHARE: f64 = 0.25;
+
+    fn bed_key(&self) -> String {
+        bed_key(self)
+    }
+
+    fn build_bed(
+        &self,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<SettledBed, DrillError> {
+        build_bed(self, &mut |p| {
+            progress(Progress {
+                fraction: p.fraction,
+                phase: "bed",
+                time: p.time,
+                particles: p.particles,
+            })
+        })
+    }
+
+    fn run_on_bed(
+        &self,
+        bed: SettledBed,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<DrillRun, DrillError> {
+        run_drill_on_bed(self, bed, progress)
+    }
+
+    fn bed_of(run: &mut DrillRun) -> (&mut BedInfo, &mut f64) {
+        (&mut run.result.bed, &mut run.result.wall_time_s)
+    }
 }
 
 /// Angle the auger starts at, from the seed (replicates on one shared bed still differ).
@@ -312,15 +333,16 @@ fn start_angle(seed: u64) -> f64 {
     (rng.symmetric() + 1.0) * std::f64::consts::PI
 }
 
+/// Drills `bed` (handed in: `bed.reused` is true until [`run_on_bed`] says otherwise).
 fn drill(
     spec: &DrillSpec,
     bed: SettledBed,
-    reused: bool,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
     let started = Instant::now();
     spec.validate()?;
-    let s = setup(spec)?;
+    let recipe = spec.bed_recipe();
+    let s = setup(&recipe)?;
     let a = &spec.auger;
     let d = &spec.drill;
     let surface = bed.surface_z;
@@ -387,7 +409,7 @@ fn drill(
 
     // Room above the surface for flung grains; grains leaving the domain are counted escaped.
     let top = spec.bin.height.max(surface) + 0.1 + d.lift_height;
-    let mut world = bin_world(spec, &s, top, spec.seed)?;
+    let mut world = bin_world(&recipe, &s, top, spec.seed)?;
     for k in 0..bed.positions.len() {
         let v = |x: [f64; 3]| Vec3::new(x[0], x[1], x[2]);
         world
@@ -578,15 +600,7 @@ fn drill(
         feed_energy_j: loads.feed_energy,
         energy_j: loads.rotation_energy + loads.feed_energy,
         series: loads.series,
-        bed: BedInfo {
-            key: bed.key.clone(),
-            particles: bed.positions.len(),
-            settled: bed.settled,
-            reused,
-            surface_z_mm: 1e3 * surface,
-            simulated_time_s: bed.simulated_time_s,
-            wall_time_s: bed.wall_time_s,
-        },
+        bed: BedInfo::of(&bed),
         grain_diameter_mm: 2e3 * mean_r,
         particles: world.particles().len(),
         escaped: world.removed_count(),
@@ -596,7 +610,7 @@ fn drill(
         simulated_time_s: world.time(),
         steps: world.steps(),
         time_step_s: world.config().time_step,
-        wall_time_s: started.elapsed().as_secs_f64() + if reused { 0.0 } else { bed.wall_time_s },
+        wall_time_s: started.elapsed().as_secs_f64(),
     };
     Ok(DrillRun {
         result,

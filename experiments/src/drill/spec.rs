@@ -53,71 +53,13 @@ use repose_engine::material::{Interaction, MaterialSet};
 use repose_engine::mesh::TriMesh;
 use serde::{Deserialize, Serialize};
 
-use crate::aor::{AorSpec, Materials, RollingSpec};
+use crate::soil::{
+    coarse_grains, default_epsd_damping, default_rayleigh_fraction, max_radius, non_negative,
+    paper_soil_soil, paper_soil_steel, positive, BedRecipe, BedSpec, BinSpec, Materials,
+    RollingSpec, SettleSpec, SurfaceReading,
+};
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
-
-/// The steel soil bin: an open box, floor at z = 0, centred on the drill axis (x = y = 0).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BinSpec {
-    /// m
-    pub size_x: f64,
-    /// m
-    pub size_y: f64,
-    /// Wall height, m (at least the bed depth).
-    pub height: f64,
-}
-
-/// When a phase counts as "at rest": checks every `check_interval` after `min_time`; either
-/// criterion ends the phase, `time_cap` (simulated seconds in the phase) gives up:
-///
-/// * kinetic energy: the mean kinetic energy per grain is below `kinetic_energy_threshold ×
-///   m g d` (m, d: mean grain mass and diameter);
-/// * stable shape: over the last `stable_window` checks the measured shape moved by at most
-///   `stable_tolerance_diameters` grain diameters (the bed: its surface level; after drilling:
-///   the hole's effective depth and opening diameter). Constant-torque rolling friction keeps a
-///   deep bed of these soft grains jittering at a kinetic energy ratio of about 1e-3 although
-///   nothing moves any more at the scale of a grain.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SettleSpec {
-    /// s
-    pub min_time: f64,
-    /// s
-    pub check_interval: f64,
-    /// Dimensionless, relative to m g d (m, d: mean grain mass and diameter).
-    pub kinetic_energy_threshold: f64,
-    /// s
-    pub time_cap: f64,
-    /// Grain diameters.
-    #[serde(default = "default_stable_tolerance")]
-    pub stable_tolerance_diameters: f64,
-    /// Consecutive checks (at least 2).
-    #[serde(default = "default_stable_window")]
-    pub stable_window: usize,
-}
-
-fn default_stable_tolerance() -> f64 {
-    0.1
-}
-fn default_stable_window() -> usize {
-    3
-}
-
-/// The soil bed: grains dropped from a loose lattice filling the bin, settled under gravity.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BedSpec {
-    /// Depth of the settled bed aimed at, m (the grain count is sized from it).
-    pub depth: f64,
-    /// Solid volume fraction assumed to size the grain count.
-    pub packing_fraction: f64,
-    /// Seed of the bed; `None` uses the spec's `seed`.
-    #[serde(default)]
-    pub seed: Option<u64>,
-    pub settle: SettleSpec,
-}
 
 /// The helical auger (steel), tip down on the z axis.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -222,12 +164,14 @@ pub struct DrillMeasureSettings {
 }
 
 impl Default for DrillMeasureSettings {
+    /// The bed's surface is read as any bed's ([`SurfaceReading::default`]).
     fn default() -> Self {
+        let surface = SurfaceReading::default();
         DrillMeasureSettings {
-            cell_fraction: 0.5,
-            probe_fraction: 1.0,
+            cell_fraction: surface.cell_fraction,
+            probe_fraction: surface.probe_fraction,
             open_depth_diameters: 1.0,
-            wall_margin_diameters: 2.0,
+            wall_margin_diameters: surface.wall_margin_diameters,
             series_interval: 0.05,
         }
     }
@@ -271,13 +215,6 @@ pub struct DrillSpec {
     pub measure: DrillMeasureSettings,
 }
 
-fn default_epsd_damping() -> f64 {
-    0.3
-}
-fn default_rayleigh_fraction() -> f64 {
-    0.2
-}
-
 /// Names of the presets accepted by [`DrillSpec::preset`] (the first is the default).
 pub const PRESETS: [&str; 3] = ["default", "fast", "full"];
 
@@ -291,17 +228,13 @@ impl DrillSpec {
     /// The paper's test unscaled: 600 x 600 mm bin (750 mm walls), 700 mm bed, 60 mm auger to
     /// 600 mm at 400 r/min and 20 mm/s. Grains as in the default preset (about 1.7 million).
     pub fn full_scale() -> DrillSpec {
-        let aor = AorSpec::paper();
         DrillSpec {
-            materials: aor.materials,
-            soil_soil: aor.soil_soil,
-            soil_steel: aor.soil_steel,
-            rolling_model: aor.rolling_model,
-            epsd_viscous_damping: aor.epsd_viscous_damping,
-            particle: SizeDistributionSpec::Uniform {
-                min_radius: 0.0027,
-                max_radius: 0.0033,
-            },
+            materials: Materials::default(),
+            soil_soil: paper_soil_soil(),
+            soil_steel: paper_soil_steel(),
+            rolling_model: RollingSpec::Cdt,
+            epsd_viscous_damping: default_epsd_damping(),
+            particle: coarse_grains(),
             bin: BinSpec {
                 size_x: 0.6,
                 size_y: 0.6,
@@ -311,14 +244,7 @@ impl DrillSpec {
                 depth: 0.7,
                 packing_fraction: 0.52,
                 seed: None,
-                settle: SettleSpec {
-                    min_time: 0.3,
-                    check_interval: 0.05,
-                    kinetic_energy_threshold: 1e-3,
-                    time_cap: 3.0,
-                    stable_tolerance_diameters: default_stable_tolerance(),
-                    stable_window: default_stable_window(),
-                },
+                settle: SettleSpec::poured_bed(),
             },
             auger: AugerGeometry {
                 outer_diameter: 0.06,
@@ -342,11 +268,8 @@ impl DrillSpec {
             },
             settle: SettleSpec {
                 min_time: 0.1,
-                check_interval: 0.05,
-                kinetic_energy_threshold: 1e-3,
                 time_cap: 1.0,
-                stable_tolerance_diameters: default_stable_tolerance(),
-                stable_window: default_stable_window(),
+                ..SettleSpec::poured_bed()
             },
             time_step_rayleigh_fraction: default_rayleigh_fraction(),
             wall_time_cap: None,
@@ -411,105 +334,38 @@ impl DrillSpec {
         self.bed.seed.unwrap_or(self.seed)
     }
 
+    /// The recipe of the bed this spec drills (its soil, bin, bed, time step and surface
+    /// reading).
+    pub fn bed_recipe(&self) -> BedRecipe {
+        BedRecipe {
+            materials: self.materials,
+            soil_soil: self.soil_soil,
+            soil_steel: self.soil_steel,
+            rolling_model: self.rolling_model,
+            epsd_viscous_damping: self.epsd_viscous_damping,
+            particle: self.particle.clone(),
+            bin: self.bin,
+            bed: self.bed,
+            time_step_rayleigh_fraction: self.time_step_rayleigh_fraction,
+            wall_time_cap: self.wall_time_cap,
+            seed: self.seed,
+            surface: SurfaceReading {
+                cell_fraction: self.measure.cell_fraction,
+                probe_fraction: self.measure.probe_fraction,
+                wall_margin_diameters: self.measure.wall_margin_diameters,
+            },
+        }
+    }
+
     /// Checks the fields that make the bed ([`super::bed_key`]'s inputs, the wall-time cap):
-    /// all [`super::build_bed`] needs. The shear test builds its sample with it from a spec
-    /// whose auger and drilling fields are unused.
+    /// all [`super::build_bed`] needs ([`BedRecipe::validate`]).
     pub fn validate_bed(&self) -> Result<(), SpecError> {
-        let positive = |path: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(invalid(path, format!("must be finite and > 0, got {v}")))
-            }
-        };
-        let non_negative = |path: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(invalid(path, format!("must be finite and >= 0, got {v}")))
-            }
-        };
-        crate::aor::check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)
-            .map_err(|(path, reason)| invalid(&path, reason))?;
-        positive("bin.size_x", self.bin.size_x)?;
-        positive("bin.size_y", self.bin.size_y)?;
-        positive("bin.height", self.bin.height)?;
-        positive("bed.depth", self.bed.depth)?;
-        let phi = self.bed.packing_fraction;
-        if !(phi > 0.2 && phi < 0.75) {
-            return Err(invalid(
-                "bed.packing_fraction",
-                format!("must be between 0.2 and 0.75, got {phi}"),
-            ));
-        }
-        if self.bed.depth > self.bin.height {
-            return Err(invalid(
-                "bed.depth",
-                format!("must not exceed bin.height = {}", self.bin.height),
-            ));
-        }
-        for (prefix, s) in [("bed.settle", &self.bed.settle), ("settle", &self.settle)] {
-            non_negative(&format!("{prefix}.min_time"), s.min_time)?;
-            positive(&format!("{prefix}.check_interval"), s.check_interval)?;
-            positive(
-                &format!("{prefix}.kinetic_energy_threshold"),
-                s.kinetic_energy_threshold,
-            )?;
-            positive(&format!("{prefix}.time_cap"), s.time_cap)?;
-            non_negative(
-                &format!("{prefix}.stable_tolerance_diameters"),
-                s.stable_tolerance_diameters,
-            )?;
-            if s.stable_window < 2 {
-                return Err(invalid(
-                    &format!("{prefix}.stable_window"),
-                    "must be at least 2",
-                ));
-            }
-        }
-        let max_radius = max_radius(&self.particle);
-        if max_radius.is_finite()
-            && max_radius > 0.0
-            && 8.0 * max_radius > self.bin.size_x.min(self.bin.size_y)
-        {
-            return Err(invalid(
-                "particle",
-                "grains are too large for the bin (need at least 4 across)",
-            ));
-        }
-        let f = self.time_step_rayleigh_fraction;
-        if !(f > 0.0 && f <= 1.0) {
-            return Err(invalid(
-                "time_step_rayleigh_fraction",
-                format!("must be in (0, 1], got {f}"),
-            ));
-        }
-        if let Some(cap) = self.wall_time_cap {
-            positive("wall_time_cap", cap)?;
-        }
-        let m = &self.measure;
-        positive("measure.cell_fraction", m.cell_fraction)?;
-        non_negative("measure.probe_fraction", m.probe_fraction)?;
-        non_negative("measure.wall_margin_diameters", m.wall_margin_diameters)?;
-        Ok(())
+        self.bed_recipe().validate()
     }
 
     /// The auger, its kinematics, the settling after drilling and the hole measurement.
     fn validate_drilling(&self) -> Result<(), SpecError> {
-        let positive = |path: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(invalid(path, format!("must be finite and > 0, got {v}")))
-            }
-        };
-        let non_negative = |path: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(invalid(path, format!("must be finite and >= 0, got {v}")))
-            }
-        };
+        self.settle.check("settle")?;
         let a = &self.auger;
         positive("auger.outer_diameter", a.outer_diameter)?;
         if let Some(stl) = &self.auger_stl {
@@ -607,18 +463,6 @@ impl DrillSpec {
         positive("measure.open_depth_diameters", m.open_depth_diameters)?;
         positive("measure.series_interval", m.series_interval)?;
         Ok(())
-    }
-}
-
-/// The largest grain radius a size distribution can give, m.
-pub(crate) fn max_radius(particle: &SizeDistributionSpec) -> f64 {
-    match particle {
-        SizeDistributionSpec::Fixed { radius } => *radius,
-        SizeDistributionSpec::Uniform { max_radius, .. }
-        | SizeDistributionSpec::Normal { max_radius, .. } => *max_radius,
-        SizeDistributionSpec::SieveTable { rows } => {
-            0.5 * rows.iter().map(|r| r.size).fold(0.0, f64::max)
-        }
     }
 }
 

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
-use crate::catalog::ExperimentError;
+use crate::experiment::{ExperimentError, InvalidField};
 
 /// Why a formula spec cannot be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -15,14 +15,11 @@ pub enum FormulaError {
     Invalid { path: String, reason: String },
 }
 
-impl From<FormulaError> for ExperimentError {
-    fn from(e: FormulaError) -> ExperimentError {
-        let path = match &e {
-            FormulaError::Invalid { path, .. } => (!path.is_empty()).then(|| path.clone()),
-        };
-        ExperimentError::InvalidSpec {
-            path,
-            message: e.to_string(),
+impl InvalidField for FormulaError {
+    /// The field's path; none for the document itself (its path is empty).
+    fn path(&self) -> Option<&str> {
+        match self {
+            FormulaError::Invalid { path, .. } => Some(path.as_str()).filter(|p| !p.is_empty()),
         }
     }
 }

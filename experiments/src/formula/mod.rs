@@ -22,8 +22,7 @@ mod run;
 mod spec;
 
 pub use error::{FormulaError, FormulaFailure};
-pub(crate) use run::run;
-pub use run::{noise, Evaluation};
+pub use run::{noise, Evaluation, Formula};
 pub use spec::FormulaSpec;
 
 #[cfg(test)]

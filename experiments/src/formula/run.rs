@@ -5,12 +5,13 @@ use std::collections::BTreeMap;
 use rand::SeedableRng;
 use rand_chacha::ChaCha20Rng;
 use rand_distr::{Distribution, Normal};
-use serde_json::json;
+use serde_json::{json, Value};
 
 use super::error::FormulaFailure;
 use super::spec::FormulaSpec;
-use crate::catalog::{ExperimentError, Outcome};
+use crate::experiment::{start, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
+use crate::soil::BedStore;
 
 /// A formula run's values.
 #[derive(Debug, Clone, PartialEq)]
@@ -90,24 +91,37 @@ impl FormulaSpec {
     }
 }
 
-/// The catalog's run of a formula job.
-pub(crate) fn run(
-    spec: &FormulaSpec,
-    seed: u64,
-    progress: &mut dyn FnMut(f64) -> Control,
-) -> Result<Outcome, ExperimentError> {
-    if progress(0.0) == Control::Cancel {
-        return Err(ExperimentError::Cancelled);
+/// The `formula` kind: no presets, a spec is given whole.
+#[derive(Debug, Clone, Copy)]
+pub struct Formula;
+
+impl Experiment for Formula {
+    const KIND: Kind = Kind::Formula;
+    type Spec = FormulaSpec;
+
+    fn parse(spec: &Value) -> Result<FormulaSpec, ExperimentError> {
+        FormulaSpec::from_json(spec).map_err(|e| ExperimentError::invalid_spec(&e))
     }
-    let evaluation = spec.evaluate(seed)?;
-    Ok(Outcome {
-        details: json!({
-            "inputs": spec.inputs(),
-            "noise_free": evaluation.noise_free,
-            "noise": evaluation.noise,
-        }),
-        metrics: evaluation.metrics,
-        pictures: Vec::new(),
-        hold_s: 0.0,
-    })
+
+    /// Every response with its noise, or no result where the formula fails (under any seed).
+    fn run(
+        spec: FormulaSpec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        _beds: &mut dyn BedStore,
+        _checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        start(progress)?;
+        let evaluation = spec.evaluate(seed)?;
+        Ok(Outcome {
+            details: json!({
+                "inputs": spec.inputs(),
+                "noise_free": evaluation.noise_free,
+                "noise": evaluation.noise,
+            }),
+            metrics: evaluation.metrics,
+            pictures: Vec::new(),
+            hold_s: 0.0,
+        })
+    }
 }

@@ -4,8 +4,9 @@
 //! angle, with the fit's quality).
 //!
 //! * [`ShearSpec`]: the experiment as serde data, presets, dotted-path `set`, `validate`.
-//! * [`build_sample`] / [`sample_key`]: the settled sample (the drilling test's bed recipe in
-//!   the closed box, a [`SettledBed`](crate::drill::SettledBed)) and the key under which a
+//! * [`build_sample`] / [`sample_key`]: the settled sample (the drilling test's bed recipe,
+//!   [`BedRecipe`](crate::soil::BedRecipe), in the closed box, a
+//!   [`SettledBed`](crate::soil::SettledBed)) and the key under which a
 //!   caller may cache it; [`run_shear_on_bed`] runs the stages on a cached sample,
 //!   [`run_shear`] builds it and runs them (the same outcome bit for bit). Every stage starts
 //!   from the same sample.
@@ -16,12 +17,14 @@
 //!
 //! No file I/O here. See docs/shear.md.
 
+mod experiment;
 mod measure;
 mod picture;
 mod run;
 mod spec;
 mod window;
 
+pub use experiment::Shear;
 pub use measure::{
     mohr_coulomb_fit, running_mean, shear_strength, MohrCoulomb, ShearMeasureError, ShearPoint,
     ShearRecord, StrengthPoint,

@@ -37,10 +37,11 @@ use super::measure::{
 use super::picture::{curves_svg, strength_svg};
 use super::spec::{ShearSpec, SpecError};
 use super::window::{PlaneStress, Window};
-use crate::drill::{
-    bed_key, build_bed, kinetic_energy_ratio, setup, BedInfo, DrillError, SettledBed, Setup,
-};
 pub use crate::progress::{Control, Progress};
+use crate::soil::{
+    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, NoBedStore, OnBed, SettledBed,
+    Setup,
+};
 
 /// Why a run could not start or was stopped before it could report (a finished run whose
 /// stages did not all consolidate is a [`ShearResult`] with a non-`ok` status, not an error).
@@ -64,16 +65,13 @@ pub enum ShearError {
     WallTimeCap { phase: &'static str, cap_s: f64 },
 }
 
-impl From<DrillError> for ShearError {
-    fn from(e: DrillError) -> ShearError {
+impl From<BedError> for ShearError {
+    fn from(e: BedError) -> ShearError {
         match e {
-            DrillError::Spec(e) => ShearError::Spec(e),
-            DrillError::Build { part, reason } => ShearError::Build { part, reason },
-            DrillError::BedMismatch { expected, found } => {
-                ShearError::BedMismatch { expected, found }
-            }
-            DrillError::Cancelled => ShearError::Cancelled,
-            DrillError::WallTimeCap { cap_s, .. } => ShearError::WallTimeCap {
+            BedError::Spec(e) => ShearError::Spec(e),
+            BedError::Build { part, reason } => ShearError::Build { part, reason },
+            BedError::Cancelled => ShearError::Cancelled,
+            BedError::WallTimeCap { cap_s } => ShearError::WallTimeCap {
                 phase: "building the sample",
                 cap_s,
             },
@@ -337,9 +335,9 @@ impl ShearRun {
     }
 }
 
-/// The sample's cache key: the drilling bed key of [`ShearSpec::bed_spec`].
+/// The sample's cache key: the key of [`ShearSpec::bed_recipe`].
 pub fn sample_key(spec: &ShearSpec) -> String {
-    bed_key(&spec.bed_spec())
+    spec.bed_recipe().key()
 }
 
 /// Pours and settles the sample of `spec` (the drilling bed recipe in the closed box).
@@ -348,7 +346,7 @@ pub fn build_sample(
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<SettledBed, ShearError> {
     spec.validate()?;
-    Ok(build_bed(&spec.bed_spec(), &mut |p| {
+    Ok(spec.bed_recipe().build(&mut |p| {
         progress(Progress {
             fraction: p.fraction,
             phase: "sample",
@@ -358,31 +356,18 @@ pub fn build_sample(
     })?)
 }
 
-/// Builds the sample and runs every stage on it. The sample takes the first fifth of the
-/// progress fraction.
+/// Builds the sample and runs every stage on it ([`run_on_bed`] without a store). The sample
+/// takes the first fifth of the progress fraction.
 pub fn run_shear(
     spec: &ShearSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
-    let started = Instant::now();
-    let bed = build_sample(spec, &mut |p| {
-        progress(Progress {
-            fraction: 0.2 * p.fraction,
-            ..p
-        })
-    })?;
-    let mut run = shear(spec, bed, false, &mut |p| {
-        progress(Progress {
-            fraction: 0.2 + 0.8 * p.fraction,
-            ..p
-        })
-    })?;
-    run.result.wall_time_s = started.elapsed().as_secs_f64();
-    Ok(run)
+    run_on_bed(spec, &mut NoBedStore, progress)
 }
 
 /// Runs every stage on a sample built earlier by [`build_sample`] for a spec with the same
-/// [`sample_key`] (e.g. from a cache). Same outcome, bit for bit, as [`run_shear`].
+/// [`sample_key`] (e.g. from a cache). Same outcome, bit for bit, as [`run_shear`], but for
+/// `bed.reused` (true here) and the wall time (without the sample's).
 pub fn run_shear_on_bed(
     spec: &ShearSpec,
     bed: SettledBed,
@@ -395,20 +380,51 @@ pub fn run_shear_on_bed(
             found: bed.key,
         });
     }
-    shear(spec, bed, true, progress)
+    shear(spec, bed, progress)
 }
 
+/// The shear test runs on a settled sample, built in the first fifth of the progress.
+impl OnBed for ShearSpec {
+    type Run = ShearRun;
+    type Error = ShearError;
+    const BED_SHARE: f64 = 0.2;
+
+    fn bed_key(&self) -> String {
+        sample_key(self)
+    }
+
+    fn build_bed(
+        &self,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<SettledBed, ShearError> {
+        build_sample(self, progress)
+    }
+
+    fn run_on_bed(
+        &self,
+        bed: SettledBed,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<ShearRun, ShearError> {
+        run_shear_on_bed(self, bed, progress)
+    }
+
+    fn bed_of(run: &mut ShearRun) -> (&mut BedInfo, &mut f64) {
+        (&mut run.result.bed, &mut run.result.wall_time_s)
+    }
+}
+
+/// Runs every stage on `bed` (handed in: `bed.reused` is true until [`run_on_bed`] says
+/// otherwise).
 fn shear(
     spec: &ShearSpec,
     bed: SettledBed,
-    reused: bool,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
     let started = Instant::now();
     spec.validate()?;
     // The sample's setup (grain sizes, time step) with the spec's own contacts: the sample was
     // poured without cohesion, the stages have it.
-    let mut s = setup(&spec.bed_spec())?;
+    let mut s = setup(&spec.bed_recipe())?;
     s.table = spec
         .material_set()
         .build()
@@ -487,15 +503,7 @@ fn shear(
         peak_fit: box_peak,
         residual_fit: residual,
         stages,
-        bed: BedInfo {
-            key: bed.key.clone(),
-            particles: bed.positions.len(),
-            settled: bed.settled,
-            reused,
-            surface_z_mm: 1e3 * bed.surface_z,
-            simulated_time_s: bed.simulated_time_s,
-            wall_time_s: bed.wall_time_s,
-        },
+        bed: BedInfo::of(&bed),
         box_side_mm: 1e3 * spec.shear_box.side,
         shear_plane_mm: 1e3 * spec.shear_box.half_height,
         grain_diameter_mm: 2e3 * mean_r,
@@ -503,7 +511,7 @@ fn shear(
         time_step_s: s.dt,
         simulated_time_s: simulated,
         steps,
-        wall_time_s: started.elapsed().as_secs_f64() + if reused { 0.0 } else { bed.wall_time_s },
+        wall_time_s: started.elapsed().as_secs_f64(),
     };
     Ok(ShearRun {
         result,

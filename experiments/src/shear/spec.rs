@@ -69,8 +69,11 @@ use repose_engine::distribution::SizeDistributionSpec;
 use repose_engine::material::{Cohesion, Interaction, MaterialSet};
 use serde::{Deserialize, Serialize};
 
-use crate::aor::{AorSpec, Materials, RollingSpec};
-use crate::drill::{max_radius, BedSpec, BinSpec, DrillSpec, SettleSpec};
+use crate::soil::{
+    check_contacts, coarse_grains, default_epsd_damping, default_rayleigh_fraction, max_radius,
+    non_negative, paper_soil_soil, paper_soil_steel, positive, BedRecipe, BedSpec, BinSpec,
+    Materials, RollingSpec, SettleSpec, SurfaceReading,
+};
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
 
@@ -200,13 +203,6 @@ pub struct ShearSpec {
     pub seed: u64,
 }
 
-fn default_epsd_damping() -> f64 {
-    0.3
-}
-fn default_rayleigh_fraction() -> f64 {
-    0.2
-}
-
 /// Names of the presets accepted by [`ShearSpec::preset`] (the first is the default).
 pub const PRESETS: [&str; 2] = ["default", "fast"];
 
@@ -219,15 +215,13 @@ impl Default for ShearSpec {
 impl ShearSpec {
     /// The default preset (see the module docs).
     pub fn paper() -> ShearSpec {
-        let aor = AorSpec::paper();
-        let drill = DrillSpec::paper();
         ShearSpec {
-            materials: aor.materials,
-            soil_soil: aor.soil_soil,
-            soil_steel: aor.soil_steel,
-            rolling_model: aor.rolling_model,
-            epsd_viscous_damping: aor.epsd_viscous_damping,
-            particle: drill.particle,
+            materials: Materials::default(),
+            soil_soil: paper_soil_soil(),
+            soil_steel: paper_soil_steel(),
+            rolling_model: RollingSpec::Cdt,
+            epsd_viscous_damping: default_epsd_damping(),
+            particle: coarse_grains(),
             shear_box: BoxSpec {
                 side: 0.1,
                 half_height: 0.025,
@@ -237,7 +231,7 @@ impl ShearSpec {
                 height: 0.065,
                 packing_fraction: 0.52,
                 seed: None,
-                settle: drill.bed.settle,
+                settle: SettleSpec::poured_bed(),
             },
             normal_stresses_kpa: vec![5.0, 10.0, 15.0, 20.0],
             servo: ServoSpec {
@@ -297,41 +291,39 @@ impl ShearSpec {
         self.rolling_model.engine_model(self.epsd_viscous_damping)
     }
 
-    /// The sample's recipe as a drilling bed: the box as the bin (walls as high as both
-    /// halves together), the sample height as the bed depth, the contacts without cohesion. Only its bed fields are used
-    /// ([`crate::drill::build_bed`], [`crate::drill::bed_key`]); its auger and drilling fields
-    /// are the `fast` drilling preset's, unused. A cached drilling bed with the same key is the
+    /// The sample's bed recipe (the drilling bed's, [`BedRecipe`]): the box as the bin (walls
+    /// as high as both halves together), the sample height as the bed depth, the contacts
+    /// without cohesion, the surface read as any bed's. A cached bed with the same key is the
     /// same sample.
-    pub fn bed_spec(&self) -> DrillSpec {
-        let mut d = DrillSpec::fast();
-        d.materials = self.materials;
+    pub fn bed_recipe(&self) -> BedRecipe {
         // Poured without cohesion (see the module docs).
-        d.soil_soil = Interaction {
+        let without_cohesion = |pair: Interaction| Interaction {
             cohesion: Cohesion::None,
-            ..self.soil_soil
+            ..pair
         };
-        d.soil_steel = Interaction {
-            cohesion: Cohesion::None,
-            ..self.soil_steel
-        };
-        d.rolling_model = self.rolling_model;
-        d.epsd_viscous_damping = self.epsd_viscous_damping;
-        d.particle = self.particle.clone();
-        d.bin = BinSpec {
-            size_x: self.shear_box.side,
-            size_y: self.shear_box.side,
-            height: self.shear_box.half_height + self.shear_box.upper_height,
-        };
-        d.bed = BedSpec {
-            depth: self.bed.height,
-            packing_fraction: self.bed.packing_fraction,
-            seed: self.bed.seed,
-            settle: self.bed.settle,
-        };
-        d.time_step_rayleigh_fraction = self.time_step_rayleigh_fraction;
-        d.wall_time_cap = self.wall_time_cap;
-        d.seed = self.seed;
-        d
+        BedRecipe {
+            materials: self.materials,
+            soil_soil: without_cohesion(self.soil_soil),
+            soil_steel: without_cohesion(self.soil_steel),
+            rolling_model: self.rolling_model,
+            epsd_viscous_damping: self.epsd_viscous_damping,
+            particle: self.particle.clone(),
+            bin: BinSpec {
+                size_x: self.shear_box.side,
+                size_y: self.shear_box.side,
+                height: self.shear_box.half_height + self.shear_box.upper_height,
+            },
+            bed: BedSpec {
+                depth: self.bed.height,
+                packing_fraction: self.bed.packing_fraction,
+                seed: self.bed.seed,
+                settle: self.bed.settle,
+            },
+            time_step_rayleigh_fraction: self.time_step_rayleigh_fraction,
+            wall_time_cap: self.wall_time_cap,
+            seed: self.seed,
+            surface: SurfaceReading::default(),
+        }
     }
 }
 
@@ -360,15 +352,7 @@ impl Spec for ShearSpec {
 
     /// Checks what the engine does not check itself. The error names the field.
     fn validate(&self) -> Result<(), SpecError> {
-        let positive = |path: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(invalid(path, format!("must be finite and > 0, got {v}")))
-            }
-        };
-        crate::aor::check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)
-            .map_err(|(path, reason)| invalid(&path, reason))?;
+        check_contacts(&self.materials, &self.soil_soil, &self.soil_steel)?;
         positive("box.side", self.shear_box.side)?;
         positive("box.half_height", self.shear_box.half_height)?;
         positive("box.upper_height", self.shear_box.upper_height)?;
@@ -467,12 +451,7 @@ impl Spec for ShearSpec {
             ));
         }
         let w = &self.window;
-        if !(w.margin_grains.is_finite() && w.margin_grains >= 0.0) {
-            return Err(invalid(
-                "window.margin_grains",
-                format!("must be finite and >= 0, got {}", w.margin_grains),
-            ));
-        }
+        non_negative("window.margin_grains", w.margin_grains)?;
         positive("window.thickness_grains", w.thickness_grains)?;
         let d = 2.0 * r;
         let width = self.shear_box.side - self.shear.displacement - 2.0 * w.margin_grains * d;
@@ -497,7 +476,7 @@ impl Spec for ShearSpec {
         }
         // The remaining sample fields (packing, settle criteria, time step, wall-time cap)
         // are the drilling bed's; its checks name the same paths under `bed.`.
-        self.bed_spec().validate_bed().map_err(|e| match e {
+        self.bed_recipe().validate().map_err(|e| match e {
             SpecError::Invalid { path, reason } => invalid(&rename_bed_path(&path), reason),
             other => other,
         })

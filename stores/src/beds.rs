@@ -1,10 +1,10 @@
-//! Settled drilling beds on disk (`<dir>/<bed key>.json`), shared by every run of a worker and
-//! by `repose drill --bed-cache`: a bed is built once per set of bed inputs and reused.
+//! Settled beds on disk (`<dir>/<bed key>.json`), shared by every run of a worker and by
+//! `repose drill --bed-cache` and `repose shear --bed-cache`: a bed is built once per set of
+//! bed inputs and reused.
 
 use std::path::{Path, PathBuf};
 
-use repose_experiments::catalog::BedStore;
-use repose_experiments::drill::SettledBed;
+use repose_experiments::soil::{BedStore, SettledBed};
 
 /// A directory of settled beds. Reads that fail (missing, unreadable, another key) are
 /// misses; writes go to a temporary name and are renamed, so a concurrent reader — another
@@ -52,7 +52,7 @@ impl BedStore for FileBedStore {
 
 #[cfg(test)]
 mod tests {
-    use repose_experiments::drill::SettledBy;
+    use repose_experiments::soil::SettledBy;
 
     use super::*;
 

@@ -1,0 +1,85 @@
+//! The direct shear kind (`shear`) in the catalog: the sample built or taken from the store,
+//! the stages sheared, the result turned into metrics (or a failure), its pictures.
+
+use serde_json::Value;
+
+use super::run::{sample_key, ShearError, ShearStatus};
+use super::spec::{ShearSpec, PRESETS};
+use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
+use crate::progress::Control;
+use crate::soil::{run_on_bed, BedStore};
+use crate::Spec;
+
+/// The direct shear experiment.
+#[derive(Debug, Clone, Copy)]
+pub struct Shear;
+
+impl Experiment for Shear {
+    const KIND: Kind = Kind::Shear;
+    type Spec = ShearSpec;
+    const PRESETS: &'static [&'static str] = &PRESETS;
+
+    fn preset(name: &str) -> Option<ShearSpec> {
+        <ShearSpec as Spec>::preset(name).ok()
+    }
+
+    fn parse(spec: &Value) -> Result<ShearSpec, ExperimentError> {
+        parse_spec(Kind::Shear, spec, ShearSpec::validate)
+    }
+
+    /// The sample is taken from `beds` when it holds one of this key, else built (in the first
+    /// fifth of the progress) and kept there ([`run_on_bed`]). The outcome is the same, bit
+    /// for bit, whether the sample was built or reused (`details.bed.reused` says which).
+    fn run(
+        mut spec: ShearSpec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        _checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        spec.seed = seed;
+        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction))?;
+        // The series thinned: a job server takes at most 64 KiB of details.
+        let details =
+            serde_json::to_value(run.result.for_details()).expect("ShearResult serialises");
+        if run.result.status == ShearStatus::MeasurementFailed {
+            return Err(ExperimentError::NoResult {
+                message: format!(
+                    "shear test gave no strength: {}",
+                    run.result.message.as_deref().unwrap_or("no fit")
+                ),
+                details,
+                another_seed_may_help: false,
+            });
+        }
+        Ok(Outcome {
+            metrics: run.result.metrics(),
+            details,
+            pictures: vec![
+                ("shear_curves.svg".to_owned(), run.curves_svg()),
+                ("mohr_coulomb.svg".to_owned(), run.strength_svg()),
+            ],
+            hold_s: 0.0,
+        })
+    }
+
+    /// [`sample_key`] of the spec with the run's seed.
+    fn bed_key(spec: &ShearSpec, seed: u64) -> Option<String> {
+        let mut spec = spec.clone();
+        spec.seed = seed;
+        Some(sample_key(&spec))
+    }
+}
+
+/// A run that cannot start or report: cancelled, or a spec the run refuses (no field named).
+impl From<ShearError> for ExperimentError {
+    fn from(e: ShearError) -> ExperimentError {
+        match e {
+            ShearError::Cancelled => ExperimentError::Cancelled,
+            other => ExperimentError::InvalidSpec {
+                path: None,
+                message: other.to_string(),
+            },
+        }
+    }
+}
