@@ -52,9 +52,9 @@ pub use measure::{
 pub use picture::{side_view_svg, PictureOptions};
 pub use rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 pub use run::{
-    measure_heap, rig_meshes, run_aor, run_aor_with_checkpoints, Amount, AorError, AorResult,
-    AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SaveCheckpoint,
-    SettleCheck,
+    check_backend, measure_heap, rig_meshes, run_aor, run_aor_on, run_aor_with_checkpoints, Amount,
+    AorError, AorResult, AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus,
+    SaveCheckpoint, SettleCheck,
 };
 pub(crate) use spec::check_contacts;
 pub use spec::{
