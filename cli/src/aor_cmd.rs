@@ -7,7 +7,7 @@
 //! stderr) and writes `result.json`,
 //! `pile.svg` (side view with the fitted flank lines; axes in mm) and `final.csv` (every grain)
 //! into `--out`. `--measure FILE` measures a particle file instead of running; `--export-stl
-//! DIR` writes the rig's meshes.
+//! DIR` writes the rig's meshes. `--backend gpu` runs the funnel on the GPU engine.
 
 use crate::backend::Backend;
 use crate::sim::write_file;

@@ -589,7 +589,7 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
     spec.validate()?;
     if kind == BackendKind::Gpu && spec.protocol == Protocol::LiftedCylinder {
         return Err(AorError::Backend(BackendError::Unsupported {
-            backend: kind.name(),
+            backend: kind.label(),
             what: "the lifted-cylinder protocol (its tube is lifted: a moving geometry)".into(),
         }));
     }
@@ -617,7 +617,7 @@ pub fn run_aor_on(
         && (checkpoints.resume.is_some() || checkpoints.save.is_some())
     {
         return Err(AorError::Backend(BackendError::Unsupported {
-            backend: engine.kind().name(),
+            backend: engine.kind().label(),
             what: "checkpoints (a GPU run cannot be continued from a saved state)".into(),
         }));
     }

@@ -33,11 +33,19 @@ pub enum BackendKind {
 }
 
 impl BackendKind {
-    /// `cpu` or `gpu`.
+    /// `cpu` or `gpu` (the serde and command-line name).
     pub fn name(self) -> &'static str {
         match self {
             BackendKind::Cpu => "cpu",
             BackendKind::Gpu => "gpu",
+        }
+    }
+
+    /// `CPU` or `GPU`, for messages.
+    pub fn label(self) -> &'static str {
+        match self {
+            BackendKind::Cpu => "CPU",
+            BackendKind::Gpu => "GPU",
         }
     }
 }
@@ -79,7 +87,7 @@ impl Engine<'_> {
 /// Why a backend cannot run a scene or stopped.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum BackendError {
-    /// The scene uses something this backend does not simulate (yet), named.
+    /// The scene uses something this backend (`CPU`, `GPU`) does not simulate (yet), named.
     #[error("the {backend} backend does not support {what} yet")]
     Unsupported { backend: &'static str, what: String },
     /// The GPU failed: no adapter, a scene that does not fit, a capacity overflow during the
@@ -92,7 +100,7 @@ impl From<repose_engine_gpu::GpuError> for BackendError {
     fn from(e: repose_engine_gpu::GpuError) -> Self {
         match e {
             repose_engine_gpu::GpuError::Unsupported(what) => BackendError::Unsupported {
-                backend: "gpu",
+                backend: BackendKind::Gpu.label(),
                 what,
             },
             e => BackendError::Gpu(e.to_string()),

@@ -194,7 +194,7 @@ fn the_gpu_backend_refuses_what_it_does_not_simulate_by_name() {
     assert!(
         matches!(
             &refusal,
-            AorError::Backend(BackendError::Unsupported { backend: "gpu", .. })
+            AorError::Backend(BackendError::Unsupported { backend: "GPU", .. })
         ),
         "{refusal:?}"
     );
