@@ -1,5 +1,6 @@
 //! Angle of repose of a granular heap: the virtual experiment ([`AorSpec`], [`run_aor`]: funnel
-//! or lifted-cylinder test on the DEM engine), the measurement from final particle positions
+//! or lifted-cylinder test on the DEM engine; [`run_aor_on`]: on another engine backend, e.g.
+//! the funnel on the GPU), the measurement from final particle positions
 //! ([`measure_angle_of_repose`]) and its side-view picture ([`side_view_svg`]).
 //!
 //! The input is plain slices (centres in metres with z up, radii in metres) so that this module
