@@ -7,16 +7,18 @@
 //! stderr) and writes `result.json`,
 //! `pile.svg` (side view with the fitted flank lines; axes in mm) and `final.csv` (every grain)
 //! into `--out`. `--measure FILE` measures a particle file instead of running; `--export-stl
-//! DIR` writes the rig's meshes.
+//! DIR` writes the rig's meshes. `--backend gpu` runs the funnel on the GPU engine.
 
+use crate::backend::Backend;
 use crate::sim::write_file;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{
-    measure_heap, rig_meshes, run_aor_with_checkpoints, side_view_svg, AorCheckpoint, AorSpec,
+    check_backend, measure_heap, rig_meshes, run_aor_on, side_view_svg, AorCheckpoint, AorSpec,
     Checkpoints, Control, PictureOptions, SaveCheckpoint,
 };
+use repose_experiments::backend::{BackendKind, Engine, Gpu};
 use repose_experiments::Spec;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -69,6 +71,11 @@ pub struct AorArgs {
     #[arg(long, value_name = "SECONDS", default_value_t = 300.0, requires = "checkpoint",
           value_parser = non_negative_seconds)]
     pub checkpoint_every: f64,
+    /// The engine: `cpu` (the reference) or `gpu` (wgpu compute: Vulkan, Metal, DX12; the
+    /// funnel protocol, without --checkpoint). The result's `engine_version` names it. Without
+    /// a GPU adapter `gpu` is an error, never a fall-back to the CPU.
+    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    pub backend: Backend,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -107,6 +114,25 @@ pub fn run(args: &AorArgs) -> Result<()> {
         return measure_file(&spec, file, args.out.as_deref());
     }
     let out = args.out.as_ref().expect("clap requires --out");
+    let gpu = match args.backend {
+        Backend::Cpu => None,
+        Backend::Gpu => {
+            check_backend(BackendKind::Gpu, &spec).context("--backend gpu")?;
+            if args.checkpoint.is_some() {
+                bail!(
+                    "--checkpoint with --backend gpu: a GPU run cannot be continued from a \
+                     saved state (run it without --checkpoint)"
+                );
+            }
+            let gpu = Gpu::open().context("--backend gpu")?;
+            eprintln!("GPU: {}", gpu.describe());
+            Some(gpu)
+        }
+    };
+    let engine = match &gpu {
+        Some(gpu) => Engine::Gpu(gpu),
+        None => Engine::Cpu,
+    };
     crate::local_run::create_dirs([out.as_path()])?;
     let pool = crate::local_run::thread_pool(args.threads)?;
     let resume = match &args.checkpoint {
@@ -134,7 +160,8 @@ pub fn run(args: &AorArgs) -> Result<()> {
                 .then_some(&mut keep as &mut SaveCheckpoint),
             every: Duration::from_secs_f64(args.checkpoint_every),
         };
-        run_aor_with_checkpoints(
+        run_aor_on(
+            engine,
             &spec,
             &mut |p| {
                 bar.set_position((p.fraction * 1000.0) as u64);

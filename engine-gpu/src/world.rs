@@ -722,6 +722,24 @@ impl GpuWorld {
             .collect())
     }
 
+    /// The particles' centres now and whether each slot is empty (its grain removed), by slot:
+    /// two read-backs where [`GpuWorld::particles`] makes five (e.g. a host-side room test).
+    pub fn positions(&self) -> Result<(Vec<Vec3>, Vec<bool>), GpuError> {
+        let n = self.n;
+        let cell = &self.read::<[i32; 4]>(&self.buffers.cell)?[..n];
+        let off = &self.read::<[f32; 4]>(&self.buffers.off)?[..n];
+        Ok((
+            cell.iter()
+                .zip(off)
+                .map(|(c, o)| {
+                    self.grid
+                        .to_position([c[0], c[1], c[2]], [o[0], o[1], o[2]])
+                })
+                .collect(),
+            cell.iter().map(|c| c[3] < 0).collect(),
+        ))
+    }
+
     /// The particles now, by slot (the first [`GpuWorld::len`] slots).
     pub fn particles(&self) -> Result<GpuParticles, GpuError> {
         let n = self.n;

@@ -295,6 +295,11 @@ impl Factory {
         &self.spec
     }
 
+    /// The particle density its mass books use, kg/m³.
+    pub fn density(&self) -> f64 {
+        self.density
+    }
+
     /// Mass inserted so far (kg).
     pub fn inserted_mass(&self) -> f64 {
         self.inserted_mass

@@ -5,6 +5,7 @@
 //! [`catalog`] puts every experiment kind behind one interface for the job server and workers.
 
 pub mod aor;
+pub mod backend;
 pub mod catalog;
 pub mod drill;
 pub mod experiment;

@@ -507,3 +507,62 @@ fn checkpointed(mut args: Vec<String>, file: &std::path::Path) -> Vec<String> {
     );
     args
 }
+
+/// `--backend gpu`: the lifted cylinder (its tube moves) and `--checkpoint` are refused by name
+/// before an adapter is opened; with one (lavapipe in CI) a small funnel (about 300 grains of
+/// 4 mm, seconds) runs on the GPU and its result names the adapter. Without an adapter the run
+/// is an error naming the problem, never a CPU run (`REPOSE_REQUIRE_GPU=1` makes that a
+/// failure of the test).
+#[test]
+fn aor_runs_the_funnel_on_the_gpu_backend_and_refuses_the_rest_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let gpu_run = |extra: &[&str]| {
+        let mut args = vec!["aor", "--backend", "gpu", "--preset", "fast", "--quiet"];
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        args.extend_from_slice(extra);
+        repose(&args)
+    };
+    let o = gpu_run(&["--set", "protocol=lifted_cylinder"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("lifted-cylinder"), "{}", stderr(&o));
+    let checkpoint = dir.path().join("run.ckpt");
+    let o = gpu_run(&["--checkpoint", checkpoint.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--checkpoint"), "{}", stderr(&o));
+    assert!(!out.exists(), "nothing ran");
+
+    let mut small = vec![];
+    for set in [
+        "particle.radius=0.002",
+        "total_mass=0.027",
+        "mass_rate=0.1",
+        "funnel.outlet_diameter=0.04",
+        "base.size=0.15",
+        "materials.soil.youngs_modulus=1e6",
+        "soil_soil.rolling_friction=0.3",
+    ] {
+        small.extend_from_slice(&["--set", set]);
+    }
+    let o = gpu_run(&small);
+    if !o.status.success() && stderr(&o).contains("no GPU adapter") {
+        assert!(
+            !std::env::var("REPOSE_REQUIRE_GPU").is_ok_and(|v| v == "1"),
+            "REPOSE_REQUIRE_GPU=1 but {}",
+            stderr(&o)
+        );
+        eprintln!("SKIPPED: {}", stderr(&o));
+        return;
+    }
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("result.json")).unwrap()).unwrap();
+    let engine = file["engine_version"].as_str().unwrap();
+    assert!(engine.contains("+gpu:"), "{engine}");
+    assert!(stderr(&o).contains("GPU: "), "{}", stderr(&o));
+    let inserted = file["grains"]["inserted"]["count"].as_u64().unwrap();
+    assert!(inserted > 250, "{file}");
+    let csv = std::fs::read_to_string(out.join("final.csv")).unwrap();
+    let escaped = file["grains"]["escaped"]["count"].as_u64().unwrap();
+    assert_eq!(csv.lines().count() as u64 - 1, inserted - escaped);
+}

@@ -417,6 +417,14 @@ impl World {
         self.sources.iter().map(|(s, _)| s)
     }
 
+    /// Removes the sources and returns them, in the order added, each with the material of its
+    /// particles: for a caller that serves them itself (another engine backend driving a
+    /// factory from the host, then [`World::add_source`] to hand them back).
+    pub fn take_sources(&mut self) -> Vec<(ParticleSource, MaterialId)> {
+        self.spawn_reports.clear();
+        std::mem::take(&mut self.sources)
+    }
+
     /// What each source did in the last step.
     pub fn last_spawn_reports(&self) -> &[SpawnReport] {
         &self.spawn_reports

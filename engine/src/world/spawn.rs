@@ -46,9 +46,12 @@ impl World {
             let reach = radius + p.radius[k];
             clear &= domain.minimum_image(p.position[k] - centre).norm_squared() >= reach * reach;
         });
-        if !clear {
-            return false;
-        }
+        clear && self.clear_of_geometries(centre, radius)
+    }
+
+    /// True if a sphere at `centre` with `radius` touches no geometry at the current time (the
+    /// geometry half of a source's room test, also for a caller that serves sources itself).
+    pub fn clear_of_geometries(&self, centre: Vec3, radius: f64) -> bool {
         let mut contacts = Vec::new();
         self.geometries.iter().all(|g| {
             let pose = g.motion.pose_at(self.time);

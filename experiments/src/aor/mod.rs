@@ -1,5 +1,6 @@
 //! Angle of repose of a granular heap: the virtual experiment ([`AorSpec`], [`run_aor`]: funnel
-//! or lifted-cylinder test on the DEM engine), the measurement from final particle positions
+//! or lifted-cylinder test on the DEM engine; [`run_aor_on`]: on another engine backend, e.g.
+//! the funnel on the GPU), the measurement from final particle positions
 //! ([`measure_angle_of_repose`]) and its side-view picture ([`side_view_svg`]).
 //!
 //! The input is plain slices (centres in metres with z up, radii in metres) so that this module
@@ -55,9 +56,9 @@ pub use measure::{
 pub use picture::{side_view_svg, PictureOptions};
 pub use rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 pub use run::{
-    measure_heap, rig_meshes, run_aor, run_aor_with_checkpoints, Amount, AorError, AorResult,
-    AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus, SaveCheckpoint,
-    SettleCheck,
+    check_backend, measure_heap, rig_meshes, run_aor, run_aor_on, run_aor_with_checkpoints, Amount,
+    AorError, AorResult, AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus,
+    SaveCheckpoint, SettleCheck,
 };
 pub use spec::{
     sieve_curve_with_mean_diameter, AorSpec, BaseSpec, CylinderGeometry, FunnelGeometry, Protocol,

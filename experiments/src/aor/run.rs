@@ -26,6 +26,7 @@ use super::measure::{measure_angle_of_repose, AngleOfRepose, MeasureError, Measu
 use super::picture::{side_view_svg, PictureOptions};
 use super::rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 use super::spec::{AorSpec, Protocol, SpecError};
+use crate::backend::{Backend, BackendError, BackendKind, Engine, Grains};
 // The progress callback's types (phases here: `filling`, `lifting`, `settling`, `measuring`;
 // filling is the first half of the fraction, settling the second).
 pub use crate::progress::{Control, Progress};
@@ -42,6 +43,9 @@ pub enum AorError {
     /// The checkpoint to resume from does not belong to this spec.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    /// The engine backend cannot run this spec (named), or failed during the run.
+    #[error(transparent)]
+    Backend(#[from] BackendError),
 }
 
 fn build_error(part: &'static str, e: impl std::fmt::Display) -> AorError {
@@ -174,6 +178,11 @@ pub struct AorResult {
     #[serde(default)]
     pub rest: Option<RestState>,
     pub checks: Vec<SettleCheck>,
+    /// The engine that computed the run: the CPU engine's version, or
+    /// `<version>+gpu:<adapter>` for the GPU backend ([`crate::backend::Engine::engine_version`]).
+    /// None in results written before the field existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub engine_version: Option<String>,
 }
 
 /// A finished run: the result plus what the caller may want to draw or save.
@@ -185,7 +194,8 @@ pub struct AorRun {
     /// The grains that were measured (the heap region).
     pub positions: Vec<[f64; 3]>,
     pub radii: Vec<f64>,
-    /// The final world (e.g. for `write_particles_csv`).
+    /// The final world (e.g. for `write_particles_csv`). On a backend other than the CPU: the
+    /// rig with that backend's final grains copied in ([`Backend::into_world`]).
     pub world: World,
 }
 
@@ -426,26 +436,29 @@ pub fn measure_heap(
     measure_angle_of_repose(&heap, &heap_radii, &rig_measure_settings(spec))
 }
 
-fn factory_state(world: &World) -> (bool, f64, u64) {
-    for source in world.sources() {
-        if let ParticleSource::Factory(f) = source {
-            return (f.is_finished(), f.inserted_mass(), f.inserted_count());
-        }
+/// The factory's books: finished, inserted mass, inserted count (finished and empty without
+/// a factory).
+fn factory_state(backend: &dyn Backend) -> (bool, f64, u64) {
+    match backend.factory() {
+        Some(f) => (f.finished, f.inserted_mass, f.inserted_count),
+        None => (true, 0.0, 0),
     }
-    (true, 0.0, 0)
 }
+
+/// The heap region's grains: centres, radii and their total mass.
+type HeapRegion = (Vec<[f64; 3]>, Vec<f64>, f64);
 
 /// The grains of the heap region: centres below `heap_top` (and, for the tube, below the tube's
 /// current bottom).
-fn heap_region(world: &World, heap_top: f64, spec: &AorSpec) -> (Vec<[f64; 3]>, Vec<f64>, f64) {
+fn heap_region(
+    backend: &mut dyn Backend,
+    heap_top: f64,
+    spec: &AorSpec,
+) -> Result<HeapRegion, BackendError> {
     let top = match spec.protocol {
         Protocol::Funnel => heap_top,
         Protocol::LiftedCylinder => {
-            let bottom = world
-                .geometry(repose_engine::world::GeometryId(1))
-                .motion
-                .offset_at(world.time())
-                .z;
+            let bottom = backend.geometries()[1].motion.offset_at(backend.time()).z;
             // Before the lift the whole fill counts (it is measured only after the lift).
             if bottom <= 0.0 {
                 f64::INFINITY
@@ -455,7 +468,7 @@ fn heap_region(world: &World, heap_top: f64, spec: &AorSpec) -> (Vec<[f64; 3]>, 
         }
     }
     .min(heap_top);
-    let p = world.particles();
+    let p = backend.grains()?;
     let mut positions = Vec::new();
     let mut radii = Vec::new();
     let mut mass = 0.0;
@@ -467,7 +480,7 @@ fn heap_region(world: &World, heap_top: f64, spec: &AorSpec) -> (Vec<[f64; 3]>, 
             mass += p.mass[k];
         }
     }
-    (positions, radii, mass)
+    Ok((positions, radii, mass))
 }
 
 /// An outflow below this fraction of the mass rate, with grains left to pass, is a jam.
@@ -511,8 +524,7 @@ fn funnel_outflow(spec: &AorSpec, below_outlet: &[(f64, f64)]) -> Option<Outflow
 /// (grains spinning at 170-330 rad/s), so every EPSD run ended `not_settled` at the time cap;
 /// LIGGGHTS's own run of the same test sat at the same plateau (2.4e-3). A rolling or sliding
 /// grain translates, so nothing that changes the heap is missed.
-fn kinetic_energy_ratio(world: &World, g: f64) -> f64 {
-    let p = world.particles();
+fn kinetic_energy_ratio(p: &Grains<'_>, g: f64) -> f64 {
     if p.is_empty() {
         return 0.0;
     }
@@ -564,18 +576,59 @@ impl std::fmt::Debug for Checkpoints<'_> {
 pub fn run_aor_with_checkpoints(
     spec: &AorSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    checkpoints: Checkpoints<'_>,
+) -> Result<AorRun, AorError> {
+    run_aor_on(Engine::Cpu, spec, progress, checkpoints)
+}
+
+/// Ok if the `kind` backend runs `spec`'s protocol; else the error [`run_aor_on`] would give
+/// (the GPU backend does not lift the cylinder's tube: a moving geometry). A caller may ask
+/// before it opens a GPU. What the backend refuses in the world the spec builds (EPSD rolling,
+/// cohesion on the GPU) only the run finds, and names.
+pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> {
+    spec.validate()?;
+    if kind == BackendKind::Gpu && spec.protocol == Protocol::LiftedCylinder {
+        return Err(AorError::Backend(BackendError::Unsupported {
+            backend: kind.label(),
+            what: "the lifted-cylinder protocol (its tube is lifted: a moving geometry)".into(),
+        }));
+    }
+    Ok(())
+}
+
+/// [`run_aor_with_checkpoints`] on `engine`: the same rig, run loop, rest rule and
+/// measurement on any backend ([`crate::backend`]); the result names the engine
+/// (`engine_version`). On the CPU it is [`run_aor_with_checkpoints`], bit for bit.
+///
+/// The GPU backend runs the funnel protocol (the factory is served from the host, see
+/// [`crate::backend::GpuBackend`]) and refuses by name what it does not simulate: the lifted
+/// cylinder (its tube moves), EPSD rolling, cohesion, and checkpoints (a GPU run is not
+/// continued from a saved state: `checkpoints` must be the default).
+pub fn run_aor_on(
+    engine: Engine<'_>,
+    spec: &AorSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
     mut checkpoints: Checkpoints<'_>,
 ) -> Result<AorRun, AorError> {
     let started = Instant::now();
     let g = 9.81;
+    check_backend(engine.kind(), spec)?;
+    if engine.kind() != BackendKind::Cpu
+        && (checkpoints.resume.is_some() || checkpoints.save.is_some())
+    {
+        return Err(AorError::Backend(BackendError::Unsupported {
+            backend: engine.kind().label(),
+            what: "checkpoints (a GPU run cannot be continued from a saved state)".into(),
+        }));
+    }
     let settings = rig_measure_settings(spec);
     let nominal_fill = spec.total_mass / spec.mass_rate;
-    let (mut world, mut state, resumed_at_step) = match checkpoints.resume.take() {
+    let (mut boxed, mut state, resumed_at_step) = match checkpoints.resume.take() {
         Some(saved) => {
             spec.validate()?;
             saved.check_spec(spec)?;
             let steps = saved.world.steps();
-            (saved.world, saved.state, Some(steps))
+            (engine.start(saved.world)?, saved.state, Some(steps))
         }
         None => {
             let Rig {
@@ -594,9 +647,10 @@ pub fn run_aor_with_checkpoints(
                 below_outlet: Vec::new(),
                 wall_time_s: 0.0,
             };
-            (world, state, None)
+            (engine.start(world)?, state, None)
         }
     };
+    let backend: &mut dyn Backend = boxed.as_mut();
     let (heap_top, ready_after) = (state.heap_top, state.ready_after);
     let spent_before = state.wall_time_s;
     let wall_time = || spent_before + started.elapsed().as_secs_f64();
@@ -605,10 +659,23 @@ pub fn run_aor_with_checkpoints(
     const REPORT_EVERY: u64 = 200;
 
     while ended_by.is_none() {
-        world.step();
-        let t = world.time();
+        // The loop looks at the state after the steps below (a report, an outflow sample, a
+        // check, the deadline); a backend may take the steps up to the first of them at once.
+        let next_report = REPORT_EVERY - backend.steps() % REPORT_EVERY;
+        let (t, dt) = (backend.time(), backend.time_step());
+        let mut at_most = next_report;
+        if spec.protocol == Protocol::Funnel {
+            at_most = match state.below_outlet.last() {
+                None => 1,
+                Some(&(last, _)) => steps_until(t, dt, last + spec.settle.check_interval, at_most),
+            };
+        }
+        at_most = steps_until(t, dt, state.next_check, at_most);
+        at_most = steps_until(t, dt, state.deadline, at_most);
+        backend.advance(at_most)?;
+        let t = backend.time();
         if state.insertion_end.is_none() {
-            let (finished, _, _) = factory_state(&world);
+            let (finished, _, _) = factory_state(backend);
             if finished {
                 state.insertion_end = Some(t);
                 let ready = t.max(ready_after);
@@ -622,14 +689,14 @@ pub fn run_aor_with_checkpoints(
                 .last()
                 .is_none_or(|&(last, _)| t >= last + spec.settle.check_interval)
         {
-            let below = heap_region(&world, heap_top, spec).2;
+            let below = heap_region(backend, heap_top, spec)?.2;
             state.below_outlet.push((t, below));
         }
         let is_check = t >= state.next_check;
-        if world.steps() % REPORT_EVERY == 0 || is_check {
+        if backend.steps() % REPORT_EVERY == 0 || is_check {
             let (phase, fraction) = match state.insertion_end {
                 None => {
-                    let (_, mass, _) = factory_state(&world);
+                    let (_, mass, _) = factory_state(backend);
                     ("filling", 0.5 * (mass / spec.total_mass).min(1.0))
                 }
                 Some(end) => {
@@ -649,22 +716,24 @@ pub fn run_aor_with_checkpoints(
                 fraction,
                 phase,
                 time: t,
-                particles: world.particles().len(),
+                particles: backend.grain_count()?,
             });
             if control == Control::Cancel {
                 ended_by = Some(EndedBy::Cancelled);
                 // The state after this step is whole: keep it, so a cancelled run can go on.
-                if let Some(save) = checkpoints.save.as_mut() {
+                if let (Some(save), Some(world)) =
+                    (checkpoints.save.as_mut(), backend.checkpoint_world())
+                {
                     state.wall_time_s = wall_time();
-                    save(&encode(spec, &state, &world));
+                    save(&encode(spec, &state, world));
                 }
                 break;
             }
         }
         if is_check {
             state.next_check += spec.settle.check_interval;
-            let ke = kinetic_energy_ratio(&world, g);
-            let (positions, radii, _) = heap_region(&world, heap_top, spec);
+            let ke = kinetic_energy_ratio(&backend.grains()?, g);
+            let (positions, radii, _) = heap_region(backend, heap_top, spec)?;
             let angle = measure_angle_of_repose(&positions, &radii, &settings)
                 .ok()
                 .map(|m| m.angle_deg);
@@ -689,16 +758,18 @@ pub fn run_aor_with_checkpoints(
         if ended_by.is_none() && t >= state.deadline {
             ended_by = Some(EndedBy::TimeCap);
         }
-        if ended_by.is_none() && world.steps() % REPORT_EVERY == 0 {
+        if ended_by.is_none() && backend.steps() % REPORT_EVERY == 0 {
             if let Some(cap) = spec.wall_time_cap {
                 if wall_time() > cap {
                     ended_by = Some(EndedBy::WallTimeCap);
                 }
             }
-            if let Some(save) = checkpoints.save.as_mut() {
+            if let (Some(save), Some(world)) =
+                (checkpoints.save.as_mut(), backend.checkpoint_world())
+            {
                 if last_save.elapsed() >= checkpoints.every {
                     state.wall_time_s = wall_time();
-                    save(&encode(spec, &state, &world));
+                    save(&encode(spec, &state, world));
                     last_save = Instant::now();
                 }
             }
@@ -715,18 +786,19 @@ pub fn run_aor_with_checkpoints(
     let _ = progress(Progress {
         fraction: 1.0,
         phase: "measuring",
-        time: world.time(),
-        particles: world.particles().len(),
+        time: backend.time(),
+        particles: backend.grain_count()?,
     });
 
     // Bookkeeping.
-    let (_, inserted_mass, inserted_count) = factory_state(&world);
-    let (positions, radii, on_base_mass) = heap_region(&world, heap_top, spec);
-    let p = world.particles();
+    let (_, inserted_mass, inserted_count) = factory_state(backend);
+    let (positions, radii, on_base_mass) = heap_region(backend, heap_top, spec)?;
+    let removed = backend.removed_count()?;
+    let p = backend.grains()?;
     let present_mass: f64 = p.mass.iter().sum();
     let on_base_count = positions.len() as u64;
     let escaped = Amount {
-        count: world.removed_count(),
+        count: removed,
         mass: (inserted_mass - present_mass).max(0.0),
     };
     let held_up = Amount {
@@ -877,22 +949,38 @@ pub fn run_aor_with_checkpoints(
             escaped,
         },
         grain_diameter_m,
-        simulated_time_s: world.time(),
+        simulated_time_s: backend.time(),
         insertion_end_s: insertion_end,
-        steps: world.steps(),
-        time_step_s: world.config().time_step,
+        steps: backend.steps(),
+        time_step_s: backend.time_step(),
         wall_time_s: wall_time(),
         resumed_at_step,
         ended_by,
         came_to_rest,
         rest,
         checks,
+        engine_version: Some(backend.engine_version()),
     };
     Ok(AorRun {
         result,
         measurement: measured.ok(),
         positions,
         radii,
-        world,
+        world: boxed.into_world()?,
     })
+}
+
+/// Steps (at least one, at most `cap`) until the time, advanced from `t` by `dt` a step as
+/// the engines advance it, reaches `target`.
+fn steps_until(t: f64, dt: f64, target: f64, cap: u64) -> u64 {
+    let mut t = t;
+    let mut steps = 0;
+    while steps < cap {
+        steps += 1;
+        t += dt;
+        if t >= target {
+            break;
+        }
+    }
+    steps.max(1)
 }

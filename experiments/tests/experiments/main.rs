@@ -1,6 +1,7 @@
 //! The crate's integration tests as one test binary (one link, the tests of every file
 //! run side by side): `cargo test -p repose-experiments --test experiments <file>::`.
 
+mod aor_gpu;
 mod aor_measure;
 mod aor_paper_designs;
 mod aor_presets;
