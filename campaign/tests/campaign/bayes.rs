@@ -315,9 +315,8 @@ fn also_rising(x: &BTreeMap<String, f64>) -> Option<f64> {
     Some(20.0 + 10.0 * x["a"] - 0.2 * x["b"])
 }
 
-#[test]
-fn an_impossible_pair_needs_attention_naming_both_responses() {
-    let experiments = BTreeMap::from([
+fn impossible_experiments() -> BTreeMap<String, Experiment> {
+    BTreeMap::from([
         (
             "aor".to_owned(),
             Experiment {
@@ -330,9 +329,12 @@ fn an_impossible_pair_needs_attention_naming_both_responses() {
                 metrics: vec![("cohesion_kpa", also_rising as Formula, 0.1)],
             },
         ),
-    ]);
-    // angle 11 needs a ≈ 0.2; cohesion 28 needs a ≈ 0.8.
-    let request = json!({
+    ])
+}
+
+/// Angle 11 needs a ≈ 0.2; cohesion 28 needs a ≈ 0.8.
+fn impossible_request() -> Value {
+    json!({
         "name": "impossible",
         "strategy": {"type": "bayesian", "max_runs": 60, "batch_size": 4},
         "experiments": {"aor": template(&["a", "b"]), "shear": template(&["a", "b"])},
@@ -342,7 +344,13 @@ fn an_impossible_pair_needs_attention_naming_both_responses() {
         ],
         "factors": factors(&["a", "b"]),
         "seed": 9,
-    });
+    })
+}
+
+#[test]
+fn an_impossible_pair_needs_attention_naming_both_responses() {
+    let experiments = impossible_experiments();
+    let request = impossible_request();
     let (campaign, outstanding) = start(request);
     let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
     let Some(Step::NeedsAttention(reason)) = last else {
@@ -516,6 +524,21 @@ fn every_example_campaign_file_begins_and_the_formula_one_is_verified() {
 // ------------------------------------------------------------------------------------------
 // The drilling validation at the verified point.
 
+/// The drill's opening grows with a: 50 + 40·a (so ≈ 56.6 at the coupled answer's a ≈ 0.16).
+fn opening(x: &BTreeMap<String, f64>) -> Option<f64> {
+    Some(50.0 + 40.0 * x["a"])
+}
+
+/// Adds the drilling validation's experiment (the campaign names it by the empty key).
+fn with_drill(experiments: &mut BTreeMap<String, Experiment>) {
+    experiments.insert(
+        String::new(),
+        Experiment {
+            metrics: vec![("opening_mm", opening as Formula, 0.0)],
+        },
+    );
+}
+
 #[test]
 fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation() {
     let mut experiments = coupled_experiments();
@@ -524,16 +547,7 @@ fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation()
         "experiment": template(&["a", "b", "c"]),
         "measured": {"opening_mm": 60.0},
     });
-    // The drill's opening grows with a: 50 + 40·a (so ≈ 56.6 at the answer's a ≈ 0.16).
-    fn opening(x: &BTreeMap<String, f64>) -> Option<f64> {
-        Some(50.0 + 40.0 * x["a"])
-    }
-    experiments.insert(
-        String::new(),
-        Experiment {
-            metrics: vec![("opening_mm", opening as Formula, 0.0)],
-        },
-    );
+    with_drill(&mut experiments);
     let (campaign, outstanding) = start(request);
     let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
     let Some(Step::Finished(summary)) = last else {
@@ -561,41 +575,11 @@ fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation()
 
 #[test]
 fn targets_in_conflict_still_drill_at_the_compromise_and_stop_for_attention() {
-    let mut experiments = BTreeMap::from([
-        (
-            "aor".to_owned(),
-            Experiment {
-                metrics: vec![("angle_deg", rising as Formula, 0.05)],
-            },
-        ),
-        (
-            "shear".to_owned(),
-            Experiment {
-                metrics: vec![("cohesion_kpa", also_rising as Formula, 0.1)],
-            },
-        ),
-    ]);
-    fn opening(x: &BTreeMap<String, f64>) -> Option<f64> {
-        Some(50.0 + 40.0 * x["a"])
-    }
-    experiments.insert(
-        String::new(),
-        Experiment {
-            metrics: vec![("opening_mm", opening as Formula, 0.0)],
-        },
-    );
-    let request = json!({
-        "name": "impossible, with a drilling validation",
-        "strategy": {"type": "bayesian", "max_runs": 60, "batch_size": 4},
-        "experiments": {"aor": template(&["a", "b"]), "shear": template(&["a", "b"])},
-        "targets": [
-            {"response": "aor.angle_deg", "target": 11.0, "tolerance": {"relative_pct": 2}},
-            {"response": "shear.cohesion_kpa", "target": 28.0, "tolerance": {"relative_pct": 2}}
-        ],
-        "factors": factors(&["a", "b"]),
-        "seed": 9,
-        "validation": {"experiment": template(&["a", "b"]), "measured": {"opening_mm": 60.0}},
-    });
+    let mut experiments = impossible_experiments();
+    with_drill(&mut experiments);
+    let mut request = impossible_request();
+    request["validation"] =
+        json!({"experiment": template(&["a", "b"]), "measured": {"opening_mm": 60.0}});
     let (campaign, outstanding) = start(request);
     let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
     let Some(Step::NeedsAttention(reason)) = last else {
