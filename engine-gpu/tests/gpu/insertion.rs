@@ -200,6 +200,10 @@ fn slots_of_removed_grains_are_refilled_and_a_full_world_refuses_more() {
     }
     // Nothing was inserted by the refused call.
     assert!(a.particles().unwrap().removed[1]);
+    // The two-buffer read-back agrees with the full one.
+    let (positions, removed) = a.positions().unwrap();
+    let p = a.particles().unwrap();
+    assert_eq!((positions, removed), (p.position, p.removed));
     let slots = a.insert(&added).unwrap();
     assert_eq!(slots, vec![1, 2, 4, 5]);
     assert!(matches!(a.insert(&added[..1]), Err(GpuError::Capacity(_))));

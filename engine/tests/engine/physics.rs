@@ -1021,6 +1021,54 @@ fn a_world_saved_mid_pour_and_restored_continues_bit_for_bit() {
 }
 
 #[test]
+fn sources_taken_out_and_handed_back_pour_as_if_never_taken() {
+    // What a backend that serves a world's sources itself does with them (`take_sources`,
+    // `clear_of_geometries`): taking them out mid-pour and handing them back changes nothing.
+    use repose_engine::distribution::{SizeDistribution, SizeDistributionSpec};
+    use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
+    let materials = table(ball_material(), wall_material(), 0.3, 0.5, 0.1);
+    let dt = materials.rayleigh_time_step(BALL, 0.002, 0.2);
+    let mut world = World::new(
+        materials,
+        config(dt, Vec3::new(0.0, 0.0, -9.81), Integrator::SymplecticEuler),
+    )
+    .unwrap();
+    add_plane(&mut world, 0.05, 4);
+    let spec = FactorySpec {
+        region: Region::Box {
+            min: Vec3::new(-0.02, -0.02, 0.01),
+            max: Vec3::new(0.02, 0.02, 0.05),
+        },
+        mass_rate: 0.2,
+        total_mass: 0.02,
+        start_time: 0.0,
+        velocity: Vec3::new(0.0, 0.0, -0.3),
+        size: SizeDistribution::new(SizeDistributionSpec::Fixed { radius: 0.002 }).unwrap(),
+        max_attempts_per_particle: 100,
+    };
+    let factory = Factory::new(spec, 2500.0).unwrap();
+    assert_eq!(factory.density(), 2500.0);
+    world
+        .add_source(ParticleSource::Factory(factory), BALL)
+        .unwrap();
+    world.run_until(0.03);
+    let mut handed = world.clone();
+    let sources = handed.take_sources();
+    assert_eq!(sources.len(), 1);
+    assert!(handed.sources().next().is_none() && handed.last_spawn_reports().is_empty());
+    for (source, material) in sources {
+        handed.add_source(source, material).unwrap();
+    }
+    world.run_until(0.08);
+    handed.run_until(0.08);
+    assert!(world.particles().len() > 10);
+    assert_eq!(handed.state_hash(), world.state_hash());
+    // The plate (z = 0) is within 2 mm of a centre 1 mm above it, not of one 1 cm above it.
+    assert!(!world.clear_of_geometries(Vec3::new(0.0, 0.0, 0.001), 0.002));
+    assert!(world.clear_of_geometries(Vec3::new(0.0, 0.0, 0.01), 0.002));
+}
+
+#[test]
 fn a_factory_places_no_grain_on_one_whose_centre_lies_just_outside_its_region() {
     // The overlap test sees only the grains near the factory's region. A layer of grains with
     // their centres half a radius below the region's floor reaches into it; grains the factory

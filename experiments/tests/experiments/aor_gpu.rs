@@ -35,17 +35,18 @@ fn gpu() -> Option<Gpu> {
     }
 }
 
-/// A small funnel for CI: about 300 grains of 4 mm poured in 0.27 s through the `fast`
-/// funnel (a 40 mm outlet, 10 grains wide, 40 mm above a 15 cm plate), checked every 50 ms;
-/// at rest after about 0.7 s, 6 000 steps. Rolling friction 0.3 makes a few hundred grains
-/// stand as a heap (at the `fast` preset's 0.14 they spread into a mound two or three grains
-/// high); a softer soil (E 1 MPa) doubles the time step. Seconds on lavapipe.
+/// A small funnel for CI: about 560 grains of 4 mm poured in 0.2 s through the `fast` funnel
+/// (a 40 mm outlet, 10 grains wide, 40 mm above a 15 cm plate), checked every 50 ms; at rest
+/// after about 0.7 s, 6 000 steps. Rolling friction 0.3 makes a few hundred grains stand as a
+/// heap (at the `fast` preset's 0.14 they spread into a mound two or three grains high); a
+/// softer soil (E 1 MPa) doubles the time step. Seconds on lavapipe. (With half the grains,
+/// 3 of 24 seeds left a flank too short to measure.)
 fn small() -> AorSpec {
     let mut spec = AorSpec::fast();
     for (path, value) in [
         ("particle.radius", "0.002"),
-        ("total_mass", "0.027"),
-        ("mass_rate", "0.1"),
+        ("total_mass", "0.05"),
+        ("mass_rate", "0.25"),
         ("funnel.outlet_diameter", "0.04"),
         ("base.size", "0.15"),
         ("materials.soil.youngs_modulus", "1e6"),
@@ -60,9 +61,11 @@ fn small() -> AorSpec {
     spec
 }
 
-/// The small funnel's seed-to-seed standard deviation of the angle on the CPU: seeds 1-8 read
-/// 24.5, 19.7, 20.3, 17.5, 22.7, 21.9, 23.6 and 23.9° (mean 21.8°, range 7°).
-const SEED_STD_DEG: f64 = 2.3;
+/// The small funnel's seed-to-seed standard deviation of the angle on the CPU, rounded up:
+/// seeds 1-24 read 24.07 ± 1.85° (20.1-26.6°). The GPU on lavapipe read 24.04 ± 2.36° over
+/// the same seeds (one of them, seed 5, left a flank too short to measure): no bias between
+/// the engines to the means' 0.6° (measured 2026-11-27).
+const SEED_STD_DEG: f64 = 1.9;
 
 fn run(engine: Engine<'_>, spec: &AorSpec) -> AorRun {
     let run = run_aor_on(
@@ -144,8 +147,8 @@ fn a_small_funnel_on_the_gpu_forms_a_heap_inside_the_cpu_seed_spread() {
     eprintln!("CPU {cpu:.2?} (mean {cpu_mean:.2}°), GPU {on_gpu:.2?} (mean {gpu_mean:.2}°)");
     // A GPU heap is one more draw from the seeds' spread (σ = SEED_STD_DEG): each lies within
     // 3.5 σ of the CPU's mean of three (3 σ of the draw, and the mean's own σ/√3 on top:
-    // ±8°), and the two means of three, each with σ/√3, differ by less than 3 σ √(2/3)
-    // (5.6°). A GPU without rolling friction (9° at μr 0.01 in the `fast` rig) or with a
+    // ±6.7°), and the two means of three, each with σ/√3, differ by less than 3 σ √(2/3)
+    // (4.7°). A GPU without rolling friction (9° at μr 0.01 in the `fast` rig) or with a
     // wrong factory rate fails either. On lavapipe the GPU runs are deterministic, so the
     // test is too; another adapter draws other heaps, inside the same bounds.
     for a in &on_gpu {
@@ -234,10 +237,17 @@ fn the_gpu_backend_refuses_what_it_does_not_simulate_by_name() {
 
 /// Issue 38's acceptance check: the `fast` funnel (about 1 380 grains of 2.5 mm), seeds 1-5 on
 /// each backend; the mean angles agree within 1° and each backend's mean lies inside the
-/// other's range over the seeds. Minutes on lavapipe:
-/// `cargo test -p repose-experiments --test experiments aor_gpu:: -- --ignored --nocapture`.
+/// other's range over the seeds. Half an hour on lavapipe on two loaded cores (the GPU heaps
+/// 140-320 s each): `cargo test -p repose-experiments --test experiments aor_gpu:: --
+/// --ignored --nocapture`.
+///
+/// Measured 2026-11-27 on lavapipe: CPU 21.21, 22.69, 20.04, 22.65, 23.37° (mean 21.99°), GPU
+/// 22.26, 21.51, 19.56, 20.05, 20.28° (mean 20.73°): each mean inside the other's range, but
+/// 1.26° apart, so this test fails. Five heaps a side (σ 1.3° a heap, so σ 0.8° for the
+/// difference of the means) cannot tell a 1° bias from chance; the small funnel over 24 seeds
+/// (`SEED_STD_DEG`) found none (0.03°).
 #[test]
-#[ignore = "ten fast heaps, five of them on the GPU: minutes on lavapipe"]
+#[ignore = "ten fast heaps, five of them on the GPU: half an hour on lavapipe"]
 fn the_fast_funnel_agrees_on_both_backends_over_five_seeds() {
     let Some(gpu) = gpu() else { return };
     let angles = |engine: Engine<'_>| -> (Vec<f64>, f64) {
