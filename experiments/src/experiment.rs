@@ -199,6 +199,23 @@ pub enum ExperimentError {
 
 impl ExperimentError {
     /// [`ExperimentError::InvalidSpec`] for a spec's own error, with the field's path.
+    /// A run the spec refused when it started, naming no field (its message says why).
+    pub fn refused(e: &impl std::fmt::Display) -> ExperimentError {
+        ExperimentError::InvalidSpec {
+            path: None,
+            message: e.to_string(),
+        }
+    }
+
+    /// A run that gave no result, and would give none under another seed either.
+    pub fn no_result(message: String, details: Value) -> ExperimentError {
+        ExperimentError::NoResult {
+            message,
+            details,
+            another_seed_may_help: false,
+        }
+    }
+
     pub fn invalid_spec(e: &impl InvalidField) -> ExperimentError {
         ExperimentError::InvalidSpec {
             path: e.path().map(str::to_owned),

@@ -138,11 +138,9 @@ impl Experiment for TableLookup {
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
         start(progress)?;
-        let metrics = spec.look_up(seed).map_err(|e| ExperimentError::NoResult {
-            message: e.to_string(),
-            details: Value::Null,
-            another_seed_may_help: false,
-        })?;
+        let metrics = spec
+            .look_up(seed)
+            .map_err(|e| ExperimentError::no_result(e.to_string(), Value::Null))?;
         Ok(Outcome {
             details: serde_json::json!({ "replay": true, "values": spec.values }),
             metrics,

@@ -61,10 +61,7 @@ impl Experiment for Aor {
                 every,
             },
         )
-        .map_err(|e| ExperimentError::InvalidSpec {
-            path: None,
-            message: e.to_string(),
-        })?;
+        .map_err(|e| ExperimentError::refused(&e))?;
         if run.result.status != RunStatus::Cancelled {
             checkpoints.remove(&key);
         }

@@ -45,14 +45,13 @@ impl Experiment for Drill {
             DrillStatus::Ok | DrillStatus::NotSettled => {}
             DrillStatus::Cancelled => return Err(ExperimentError::Cancelled),
             status => {
-                return Err(ExperimentError::NoResult {
-                    message: format!(
+                return Err(ExperimentError::no_result(
+                    format!(
                         "drilling run ended {status:?}: {}",
                         run.result.message.as_deref().unwrap_or("no hole measured")
                     ),
                     details,
-                    another_seed_may_help: false,
-                })
+                ))
             }
         }
         Ok(Outcome {
@@ -79,10 +78,7 @@ impl From<DrillError> for ExperimentError {
     fn from(e: DrillError) -> ExperimentError {
         match e {
             DrillError::Cancelled => ExperimentError::Cancelled,
-            other => ExperimentError::InvalidSpec {
-                path: None,
-                message: other.to_string(),
-            },
+            other => ExperimentError::refused(&other),
         }
     }
 }

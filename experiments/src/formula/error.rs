@@ -85,10 +85,6 @@ impl FormulaFailure {
 impl From<FormulaFailure> for ExperimentError {
     /// Permanent: the same inputs fail under every seed, so a job server does not reseed it.
     fn from(failure: FormulaFailure) -> ExperimentError {
-        ExperimentError::NoResult {
-            message: failure.to_string(),
-            details: failure.details(),
-            another_seed_may_help: false,
-        }
+        ExperimentError::no_result(failure.to_string(), failure.details())
     }
 }

@@ -43,14 +43,13 @@ impl Experiment for Shear {
         let details =
             serde_json::to_value(run.result.for_details()).expect("ShearResult serialises");
         if run.result.status == ShearStatus::MeasurementFailed {
-            return Err(ExperimentError::NoResult {
-                message: format!(
+            return Err(ExperimentError::no_result(
+                format!(
                     "shear test gave no strength: {}",
                     run.result.message.as_deref().unwrap_or("no fit")
                 ),
                 details,
-                another_seed_may_help: false,
-            });
+            ));
         }
         Ok(Outcome {
             metrics: run.result.metrics(),
@@ -76,10 +75,7 @@ impl From<ShearError> for ExperimentError {
     fn from(e: ShearError) -> ExperimentError {
         match e {
             ShearError::Cancelled => ExperimentError::Cancelled,
-            other => ExperimentError::InvalidSpec {
-                path: None,
-                message: other.to_string(),
-            },
+            other => ExperimentError::refused(&other),
         }
     }
 }
