@@ -199,6 +199,9 @@ fn region_part(
                 }
             }
         }
+        @if !r.out_of_reach.is_empty() {
+            p.bad { "Out of reach in the factor box, even alone: " (r.out_of_reach.join(", ")) "." }
+        }
         @if r.pareto.len() > 1 || !r.conflict.is_empty() {
             h3 { "Trade-off between the targets" }
             @if !r.conflict.is_empty() {

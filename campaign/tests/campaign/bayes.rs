@@ -388,6 +388,37 @@ fn an_impossible_pair_needs_attention_naming_both_responses() {
     );
 }
 
+/// The impossible pair's experiments with an angle of 20 asked for: `rising` stays in 10-15.3
+/// over the box, so the angle is out of reach even alone; the cohesion of 28 is reachable.
+#[test]
+fn a_target_out_of_reach_even_alone_stops_early_naming_it() {
+    let experiments = impossible_experiments();
+    let mut request = impossible_request();
+    request["targets"][0]["target"] = json!(20.0);
+    let (campaign, outstanding) = start(request);
+    let (campaign, _, last) = drive(campaign, outstanding, &experiments, None);
+    let Some(Step::NeedsAttention(reason)) = last else {
+        panic!("{last:?}\n{:#?}", campaign.decisions);
+    };
+    assert!(
+        reason.contains("a target cannot be reached in the factor box, even alone: aor.angle_deg"),
+        "{reason}"
+    );
+    assert!(!reason.contains("shear.cohesion_kpa (band"), "{reason}");
+    let summary = campaign.summary.as_ref().expect("a result");
+    assert!(!summary.within_tolerance);
+    let bayes = summary.bayesian.as_ref().unwrap();
+    assert_eq!(bayes.out_of_reach, vec!["aor.angle_deg"]);
+    assert!(bayes.conflict.is_empty(), "{:?}", bayes.conflict);
+    let simulations = summary.simulations.unwrap();
+    eprintln!("out of reach: {reason} ({simulations} simulations)");
+    // Two assessments in a row (after the start design and after one round), not the budget.
+    assert!(simulations <= 40, "{simulations}");
+    let html = repose_campaign::report_html(&campaign, &[], &Default::default());
+    well_formed(&html);
+    assert!(html.contains("Out of reach in the factor box, even alone: aor.angle_deg."));
+}
+
 // ------------------------------------------------------------------------------------------
 // 4. Stored as JSON mid-run, resumed: the same decisions and the same end.
 

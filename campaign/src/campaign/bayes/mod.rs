@@ -54,6 +54,8 @@ const MIN_VALUES: usize = 3;
 const CONFLICT_ROUNDS: u32 = 2;
 /// A target counts as reachable alone when some point meets it with this probability.
 const REACHABLE_ALONE: f64 = 0.5;
+/// Consecutive assessments with a target out of reach alone before the campaign stops on it.
+const OUT_OF_REACH_ROUNDS: u32 = 2;
 /// Points kept in the reported region.
 const REGION_POINTS: usize = 300;
 /// Candidates scored for the region.
@@ -85,6 +87,9 @@ pub struct BayesState {
     /// Consecutive assessments that found the targets in conflict.
     #[serde(default)]
     pub conflict_rounds: u32,
+    /// Consecutive assessments that found some target out of reach alone.
+    #[serde(default)]
+    pub out_of_reach_rounds: u32,
     /// The verified point the drilling validation runs at.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drilling_point: Option<Vec<f64>>,
@@ -92,6 +97,9 @@ pub struct BayesState {
     /// the compromise ([`Campaign::unverified`] holds the stop's reason meanwhile).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub stop_conflict: Vec<String>,
+    /// The responses named as out of reach by such a stop.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub stop_out_of_reach: Vec<String>,
 }
 
 /// One simulated point: its setting and what each target's experiment measured there.
@@ -138,6 +146,9 @@ pub struct Assessment {
     /// Pairs of targets (labels) that are each reachable but not together.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub conflicts: Vec<(String, String)>,
+    /// Targets (labels) that no candidate meets even alone with probability 0.5.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub out_of_reach: Vec<String>,
     /// Each response's factor influences.
     pub influences: Vec<Influence>,
 }
@@ -191,6 +202,9 @@ pub struct BayesianResult {
     /// Targets found in conflict (labels); empty when none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub conflict: Vec<String>,
+    /// Targets found out of reach in the factor box even alone (labels); empty when none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub out_of_reach: Vec<String>,
 }
 
 /// The region of settings consistent with every measurement.
@@ -230,10 +244,26 @@ pub struct InfeasiblePoint {
 pub(crate) enum BayesStop {
     /// Each target is reachable alone, not together.
     Conflict { pairs: Vec<(String, String)> },
+    /// Some targets cannot be met anywhere in the factor box, even alone: each with its best
+    /// probability alone and the observed values closest to it (lowest, highest).
+    OutOfReach { targets: Vec<OutOfReach> },
     /// The budget is spent.
     BudgetSpent { simulations: usize },
     /// No run of the start design completed.
     NothingCompleted,
+}
+
+/// A target out of reach in the factor box, with the evidence.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct OutOfReach {
+    /// The target's label (`experiment.metric`).
+    pub label: String,
+    /// The target's value and the half-width of its tolerance band.
+    pub band: Band,
+    /// The surrogates' best probability of meeting it alone, anywhere among the candidates.
+    pub alone: f64,
+    /// The lowest and highest value observed (`None` before any).
+    pub observed: Option<(f64, f64)>,
 }
 
 /// The fitted surrogates of one decision.
@@ -598,6 +628,31 @@ impl Campaign {
             .min_by(|a, b| a.2.total_cmp(&b.2))
     }
 
+    /// The targets the assessment found out of reach, with the values observed for each.
+    fn out_of_reach(&self, assessment: &Assessment) -> Vec<OutOfReach> {
+        let bands = self.bands();
+        self.request
+            .targets()
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| assessment.out_of_reach.contains(&t.label))
+            .map(|(i, t)| OutOfReach {
+                label: t.label.clone(),
+                band: bands[i],
+                alone: assessment.alone[i],
+                observed: self
+                    .state()
+                    .observations
+                    .iter()
+                    .filter_map(|o| o.values.get(&t.label).copied())
+                    .fold(None, |r: Option<(f64, f64)>, v| match r {
+                        None => Some((v, v)),
+                        Some((lo, hi)) => Some((lo.min(v), hi.max(v))),
+                    }),
+            })
+            .collect()
+    }
+
     /// After a start or search round: assess, then verify, stop, or propose the next round.
     fn plan_round(&mut self) -> Result<Step, CampaignError> {
         let settings = self.bayes_settings();
@@ -660,10 +715,19 @@ impl Campaign {
         if assessment.probability >= stop_p && remaining >= reserve {
             return Ok(self.issue_verification(assessment.best.clone(), false));
         }
+        self.state_mut().out_of_reach_rounds = if assessment.out_of_reach.is_empty() {
+            0
+        } else {
+            self.state().out_of_reach_rounds + 1
+        };
         if self.state().conflict_rounds >= CONFLICT_ROUNDS {
             return self.bayes_stop(BayesStop::Conflict {
                 pairs: assessment.conflicts.clone(),
             });
+        }
+        if self.state().out_of_reach_rounds >= OUT_OF_REACH_ROUNDS {
+            let targets = self.out_of_reach(&assessment);
+            return self.bayes_stop(BayesStop::OutOfReach { targets });
         }
         let k = settings.batch_size.min(room);
         if k == 0 {
@@ -768,6 +832,12 @@ impl Campaign {
                 }
             }
         }
+        let out_of_reach = targets
+            .iter()
+            .zip(&alone)
+            .filter(|(_, a)| **a < REACHABLE_ALONE)
+            .map(|(t, _)| t.label.clone())
+            .collect();
         Assessment {
             round: self.state().round,
             best: self.to_natural(&candidates[best]),
@@ -775,6 +845,7 @@ impl Campaign {
             predicted: scores.means.iter().map(|m| m[best]).collect(),
             alone,
             conflicts,
+            out_of_reach,
             influences: models.influences(&targets),
         }
     }
@@ -960,7 +1031,8 @@ impl Campaign {
             // Drilled at the compromise of a stop: the campaign still stops.
             Some(reason) => {
                 let conflict = std::mem::take(&mut self.state_mut().stop_conflict);
-                let summary = self.bayes_summary(conflict);
+                let out_of_reach = std::mem::take(&mut self.state_mut().stop_out_of_reach);
+                let summary = self.bayes_summary(conflict, out_of_reach);
                 self.stop_with_summary(summary, reason)
             }
             None => self.bayes_finish(),
@@ -968,7 +1040,7 @@ impl Campaign {
     }
 
     /// The region, influences, Pareto front and failures, from surrogates fitted on all data.
-    fn bayes_result(&self, conflict: Vec<String>) -> BayesianResult {
+    fn bayes_result(&self, conflict: Vec<String>, out_of_reach: Vec<String>) -> BayesianResult {
         let targets = self.request.targets();
         let state = self.state();
         let d = self.request.factors.len();
@@ -1034,6 +1106,7 @@ impl Campaign {
                 })
                 .collect(),
             conflict,
+            out_of_reach,
         }
     }
 
@@ -1071,7 +1144,7 @@ impl Campaign {
     }
 
     /// The summary of a Bayesian campaign: the verified point, or else the best observed one.
-    fn bayes_summary(&self, conflict: Vec<String>) -> Summary {
+    fn bayes_summary(&self, conflict: Vec<String>, out_of_reach: Vec<String>) -> Summary {
         let targets = self.request.targets();
         let state = self.state();
         let verified = state
@@ -1143,12 +1216,12 @@ impl Campaign {
                 Vec::new()
             },
             simulations: Some(state.simulations),
-            bayesian: Some(Box::new(self.bayes_result(conflict))),
+            bayesian: Some(Box::new(self.bayes_result(conflict, out_of_reach))),
         }
     }
 
     fn bayes_finish(&mut self) -> Step {
-        let summary = self.bayes_summary(Vec::new());
+        let summary = self.bayes_summary(Vec::new(), Vec::new());
         self.decide(self.stage, chain_wording::finished(&summary.parameters));
         self.status = Status::Finished;
         self.summary = Some(summary.clone());
@@ -1173,11 +1246,17 @@ impl Campaign {
             }
             _ => Vec::new(),
         };
-        let summary = self.bayes_summary(conflict.clone());
+        let out_of_reach: Vec<String> = match &stop {
+            BayesStop::OutOfReach { targets } => targets.iter().map(|t| t.label.clone()).collect(),
+            _ => Vec::new(),
+        };
+        let summary = self.bayes_summary(conflict.clone(), out_of_reach.clone());
         let reason = wording::stop(&stop, &summary, &self.factor_names());
         let drill_at = match stop {
             BayesStop::NothingCompleted => None,
-            BayesStop::Conflict { .. } | BayesStop::BudgetSpent { .. } => self
+            BayesStop::Conflict { .. }
+            | BayesStop::OutOfReach { .. }
+            | BayesStop::BudgetSpent { .. } => self
                 .request
                 .drilling
                 .as_ref()
@@ -1187,6 +1266,7 @@ impl Campaign {
         if let Some((point, _, _)) = drill_at {
             self.unverified = Some(reason);
             self.state_mut().stop_conflict = conflict;
+            self.state_mut().stop_out_of_reach = out_of_reach;
             return self.issue_bayes_drilling(point, true);
         }
         Ok(self.stop_with_summary(summary, reason))

@@ -1,6 +1,6 @@
 //! The Bayesian strategy's sentences: every decision and stop of `bayes` in plain words.
 
-use super::{Assessment, BayesStop, BayesVerification};
+use super::{Assessment, BayesStop, BayesVerification, OutOfReach};
 use crate::campaign::wording::setting;
 use crate::campaign::{fmt_num, Summary};
 use crate::request::{BayesianSettings, Target};
@@ -72,6 +72,12 @@ pub(crate) fn assessment(a: &Assessment, targets: &[Target], names: &[String]) -
         text.push_str(&format!(
             " Best probability of each target alone: {}.",
             each.join(", ")
+        ));
+    }
+    if !a.out_of_reach.is_empty() {
+        text.push_str(&format!(
+            " Out of reach even alone: {}.",
+            a.out_of_reach.join(", ")
         ));
     }
     if !a.conflicts.is_empty() {
@@ -181,6 +187,21 @@ pub(crate) fn stop(stop: &BayesStop, summary: &Summary, names: &[String]) -> Str
                 .join("; "),
             setting(names, &values)
         ),
+        BayesStop::OutOfReach { targets } => format!(
+            "{} in the factor box, even alone: {}. Widen the factors' ranges, add a factor, or \
+             check the measurement. Closest compromise observed: ({}) with {observed}.",
+            if targets.len() == 1 {
+                "a target cannot be reached"
+            } else {
+                "targets cannot be reached"
+            },
+            targets
+                .iter()
+                .map(out_of_reach)
+                .collect::<Vec<_>>()
+                .join("; "),
+            setting(names, &values)
+        ),
         BayesStop::BudgetSpent { simulations } => format!(
             "the budget of simulations is spent ({simulations} issued) without a verified \
              calibration. Best point observed: ({}) with {observed}.",
@@ -191,4 +212,23 @@ pub(crate) fn stop(stop: &BayesStop, summary: &Summary, names: &[String]) -> Str
                                         experiments and the factor ranges"
             .to_owned(),
     }
+}
+
+/// One target out of reach: where its band lies against what was observed.
+fn out_of_reach(t: &OutOfReach) -> String {
+    let (lo, hi) = (
+        t.band.target - t.band.half_width,
+        t.band.target + t.band.half_width,
+    );
+    let observed = match t.observed {
+        Some((min, max)) => format!("observed {} to {}", fmt_num(min), fmt_num(max)),
+        None => "nothing observed".to_owned(),
+    };
+    format!(
+        "{} (band {} to {}; {observed}; the surrogates give it at most {} anywhere)",
+        t.label,
+        fmt_num(lo),
+        fmt_num(hi),
+        pct(t.alone)
+    )
 }
