@@ -524,6 +524,63 @@ mod tests {
         );
     }
 
+    /// Only `aor`'s funnel without EPSD rolling or cohesion runs on the GPU; every other kind
+    /// and spec is refused by name and permanently (no worker's GPU runs it), and a GPU run
+    /// keeps no checkpoint while the CPU's key stays what it was.
+    #[test]
+    fn the_gpu_runs_the_aor_funnel_and_refuses_the_rest_by_name() {
+        let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
+        aor.check_backend(BackendKind::Gpu).unwrap();
+        for kind in Kind::ALL {
+            let spec = match kind {
+                Kind::TableLookup => json!({"values": {"a": 1.0}, "rows": [{"a": 1.0}]}),
+                Kind::Formula => json!({"inputs": {"x": 1.0}, "responses": {"y": "x"}}),
+                _ => json!({}),
+            };
+            let spec = kind.prepare(None, &spec).unwrap();
+            spec.check_backend(BackendKind::Cpu).unwrap();
+            if kind == Kind::Aor {
+                continue;
+            }
+            let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
+            assert!(
+                matches!(
+                    err,
+                    ExperimentError::Unsupported {
+                        backend: BackendKind::Gpu,
+                        ..
+                    }
+                ),
+                "{kind}: {err:?}"
+            );
+            assert!(err.is_permanent(), "{kind}");
+            assert!(err.to_string().contains(&format!("`{kind}`")), "{err}");
+        }
+        for (over, names) in [
+            (json!({"rolling_model": "epsd"}), "rolling_model"),
+            (json!({"protocol": "lifted_cylinder"}), "protocol"),
+            (
+                json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
+                "soil_steel.cohesion",
+            ),
+        ] {
+            let spec = Kind::Aor.prepare(Some("fast"), &over).unwrap();
+            spec.check_backend(BackendKind::Cpu).unwrap();
+            let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
+            assert!(
+                matches!(err, ExperimentError::Unsupported { .. }) && err.is_permanent(),
+                "{err:?}"
+            );
+            assert!(err.to_string().contains(names), "{over}: {err}");
+        }
+        assert_eq!(
+            aor.checkpoint_key_on(BackendKind::Cpu, 7),
+            aor.checkpoint_key(7)
+        );
+        assert!(aor.checkpoint_key(7).is_some());
+        assert_eq!(aor.checkpoint_key_on(BackendKind::Gpu, 7), None);
+    }
+
     #[test]
     fn table_lookup_runs_and_reports_misses_as_no_result() {
         let spec = json!({
