@@ -108,8 +108,9 @@ pub(crate) fn checkpoint_interval(seconds: f64) -> Result<Duration> {
 
 pub fn run_worker(args: &WorkerArgs) -> Result<()> {
     let mut config = config(args)?;
-    crate::init_logging("info");
+    // Before logging starts: the Vulkan loader's INFO lines about opening a device are noise.
     config.gpu = crate::backend::open_worker_gpu(args.gpu)?;
+    crate::init_logging("info,wgpu_core=warn,wgpu_hal=warn,naga=warn");
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     let summary = runtime.block_on(async move {
         run(config, crate::server_cmd::shutdown_signal())

@@ -198,3 +198,49 @@ fn run_error(backend: BackendKind, e: AorError) -> ExperimentError {
         e => ExperimentError::refused(&e),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A GPU that fails during a run is the machine's failure (the job runs again); what the
+    /// GPU does not simulate is the spec's, for good; the CPU's refusals stay the spec's.
+    #[test]
+    fn a_gpu_failure_mid_run_is_retried_and_an_unsupported_scene_is_not() {
+        let lost = run_error(
+            BackendKind::Gpu,
+            AorError::Backend(BackendError::Gpu("GPU device error: lost".into())),
+        );
+        assert!(matches!(lost, ExperimentError::Local { .. }), "{lost:?}");
+        assert!(!lost.is_permanent());
+        assert!(lost.to_string().contains("GPU backend failed"), "{lost}");
+        let unsupported = run_error(
+            BackendKind::Gpu,
+            AorError::Backend(BackendError::Unsupported {
+                backend: "GPU",
+                what: "cohesion".into(),
+            }),
+        );
+        assert!(
+            matches!(
+                unsupported,
+                ExperimentError::Unsupported {
+                    backend: BackendKind::Gpu,
+                    ..
+                }
+            ),
+            "{unsupported:?}"
+        );
+        assert!(unsupported.is_permanent());
+        let mut bad = AorSpec::fast();
+        bad.total_mass = -1.0;
+        let refused = run_error(
+            BackendKind::Cpu,
+            check_backend(BackendKind::Cpu, &bad).unwrap_err(),
+        );
+        assert!(
+            matches!(refused, ExperimentError::InvalidSpec { .. }),
+            "{refused:?}"
+        );
+    }
+}
