@@ -59,6 +59,47 @@ fn default_replicates() -> u32 {
     1
 }
 
+/// Which engine runs an experiment, as a spec, a job or a command line names it (serde `cpu`,
+/// `gpu`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BackendKind {
+    /// The CPU engine: the reference, deterministic for any thread count.
+    #[default]
+    Cpu,
+    /// The GPU engine (`repose-engine-gpu`): deterministic per adapter, f32.
+    Gpu,
+}
+
+impl BackendKind {
+    /// `cpu` or `gpu` (the serde, database and command-line name).
+    pub fn name(self) -> &'static str {
+        match self {
+            BackendKind::Cpu => "cpu",
+            BackendKind::Gpu => "gpu",
+        }
+    }
+
+    /// `CPU` or `GPU`, for messages.
+    pub fn label(self) -> &'static str {
+        match self {
+            BackendKind::Cpu => "CPU",
+            BackendKind::Gpu => "GPU",
+        }
+    }
+
+    /// The CPU engine (the default, which a template leaves out when it serialises).
+    pub fn is_cpu(&self) -> bool {
+        *self == BackendKind::Cpu
+    }
+}
+
+impl std::fmt::Display for BackendKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// The experiment every run of a batch is a variation of.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -66,6 +107,11 @@ pub struct ExperimentTemplate {
     /// Experiment type understood by the workers: `aor`, `drill`, `shear`, and the test aids
     /// `table_lookup` and `formula`.
     pub kind: String,
+    /// The engine the runs need: `cpu` (the default) or `gpu` (only `aor` runs on it, the
+    /// funnel protocol without EPSD rolling or cohesion). GPU jobs go only to workers that
+    /// opened a GPU adapter (`repose worker --gpu`).
+    #[serde(default, skip_serializing_if = "BackendKind::is_cpu")]
+    pub backend: BackendKind,
     /// Named starting point for the spec (e.g. `fast` or `default` for `aor`); `spec` is merged
     /// over it, so it need only give what differs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -354,6 +400,9 @@ pub struct WorkerView {
     pub threads: u32,
     /// Worker software version.
     pub version: String,
+    /// The GPU adapter it opened (it claims `gpu` jobs too); none: CPU jobs only.
+    #[serde(default)]
+    pub gpu: Option<String>,
     /// First registration, Unix milliseconds.
     pub registered_at_ms: i64,
     /// Last registration, claim or heartbeat, Unix milliseconds.
@@ -411,6 +460,10 @@ pub struct WorkerRegistration {
     /// Worker software version (its release, `MAJOR.MINOR.PATCH`); the server accepts only
     /// its own `MAJOR.MINOR` (see [`version`]).
     pub version: String,
+    /// The GPU adapter the worker opened (`repose worker --gpu`): only workers that name one
+    /// claim jobs of `gpu` batches. None: it runs CPU jobs only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gpu: Option<String>,
 }
 
 /// Reply to a registration.
@@ -447,6 +500,9 @@ pub struct ClaimResponse {
     pub batch_id: Uuid,
     /// Experiment type.
     pub kind: String,
+    /// The engine the run needs (the batch's `experiment.backend`).
+    #[serde(default)]
+    pub backend: BackendKind,
     /// Experiment spec with this run's factor values written at their paths.
     pub spec: Value,
     /// DEM random seed of this run.
@@ -694,6 +750,25 @@ mod tests {
                 centre_points: 3
             }
         );
+    }
+
+    #[test]
+    fn a_template_runs_on_the_cpu_unless_it_names_the_gpu() {
+        let cpu: ExperimentTemplate = serde_json::from_value(json!({"kind": "aor"})).unwrap();
+        assert_eq!(cpu.backend, BackendKind::Cpu);
+        // A CPU template serialises as before the field existed (stored requests unchanged).
+        assert_eq!(
+            serde_json::to_value(&cpu).unwrap(),
+            json!({"kind": "aor", "spec": {}})
+        );
+        let gpu: ExperimentTemplate =
+            serde_json::from_value(json!({"kind": "aor", "backend": "gpu"})).unwrap();
+        assert_eq!(gpu.backend, BackendKind::Gpu);
+        assert_eq!(serde_json::to_value(&gpu).unwrap()["backend"], "gpu");
+        let err =
+            serde_json::from_value::<ExperimentTemplate>(json!({"kind": "aor", "backend": "tpu"}))
+                .unwrap_err();
+        assert!(err.to_string().contains("unknown variant `tpu`"), "{err}");
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! `--backend`: which engine runs a simulation.
+//! `--backend`: which engine runs a simulation; `--gpu`: a worker's GPU.
 
 /// The DEM engine a command runs on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -7,4 +7,22 @@ pub enum Backend {
     Cpu,
     /// The GPU engine (wgpu compute: Vulkan, Metal, DX12); deterministic per adapter.
     Gpu,
+}
+
+/// The GPU a worker (`repose worker --gpu`, `repose up --gpu`) runs `gpu` jobs on, opened once
+/// at start and shared by its slots; `None` without the flag. No adapter is an error naming
+/// the problem: a worker asked for a GPU never runs as a CPU-only one.
+pub fn open_worker_gpu(
+    gpu: bool,
+) -> anyhow::Result<Option<std::sync::Arc<repose_experiments::backend::Gpu>>> {
+    use anyhow::Context;
+    if !gpu {
+        return Ok(None);
+    }
+    let opened = repose_experiments::backend::Gpu::open().context(
+        "--gpu: this worker cannot open a GPU adapter, so it cannot run gpu jobs (start it \
+         without --gpu to run CPU jobs only)",
+    )?;
+    eprintln!("GPU: {}", opened.describe());
+    Ok(Some(std::sync::Arc::new(opened)))
 }

@@ -475,6 +475,7 @@ async fn fake_worker(
         host: "bench".into(),
         threads: 1,
         version: repose_api::version::RELEASE.into(),
+        gpu: None,
     };
     let response = client
         .post(format!("{base}/v1/workers/register"))

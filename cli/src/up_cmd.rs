@@ -74,6 +74,10 @@ pub struct UpArgs {
     /// Wall-clock seconds between two checkpoints of a run.
     #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
     pub checkpoint_every: f64,
+    /// Open a GPU at start and let the local workers run the jobs of `"backend": "gpu"`
+    /// batches on it (they share it). No adapter is an error at start.
+    #[arg(long)]
+    pub gpu: bool,
 }
 
 /// Validated settings.
@@ -90,6 +94,7 @@ struct UpConfig {
     bed_cache: PathBuf,
     checkpoints: PathBuf,
     checkpoint_every: Duration,
+    gpu: Option<std::sync::Arc<repose_experiments::backend::Gpu>>,
 }
 
 fn config(args: &UpArgs) -> Result<UpConfig> {
@@ -154,11 +159,13 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         exit_when_done: args.exit_when_done,
         artifacts: args.artifacts.clone(),
         tokens_file,
+        gpu: None,
     })
 }
 
 pub fn run(args: &UpArgs) -> Result<()> {
-    let config = config(args)?;
+    let mut config = config(args)?;
+    config.gpu = crate::backend::open_worker_gpu(args.gpu)?;
     // Warnings, and the server's one line per failed run, by default: the progress bar and the
     // analysis are the output here. The local workers' own lines about the same failures are
     // INFO under their crate's target, so each event shows once.
@@ -199,6 +206,7 @@ async fn up(config: UpConfig) -> Result<()> {
         worker.bed_cache = Some(config.bed_cache.clone());
         worker.checkpoint_dir = Some(config.checkpoints.clone());
         worker.checkpoint_every = config.checkpoint_every;
+        worker.gpu = config.gpu.clone();
         let mut stopped = workers_stopped.clone();
         workers.push(tokio::spawn(repose_worker::run(worker, async move {
             let _ = stopped.wait_for(|s| *s).await;
@@ -301,6 +309,7 @@ async fn take_back_retired_workers_jobs(
                 host: retired.host.clone(),
                 threads: retired.threads,
                 version: repose_api::version::RELEASE.to_owned(),
+                gpu: None,
             })
             .await?;
     }

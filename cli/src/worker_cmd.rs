@@ -54,6 +54,11 @@ pub struct WorkerArgs {
     /// ends when the queue is empty instead of holding its allocation. Default: wait forever.
     #[arg(long, env = "REPOSE_EXIT_WHEN_IDLE", value_name = "SECONDS")]
     pub exit_when_idle: Option<f64>,
+    /// Open a GPU (Vulkan, Metal, DX12; `WGPU_ADAPTER_NAME` picks one) at start and run the
+    /// jobs of `"backend": "gpu"` batches on it, besides CPU jobs; its slots share it. No
+    /// adapter is an error at start, never a CPU-only worker.
+    #[arg(long, env = "REPOSE_GPU")]
+    pub gpu: bool,
 }
 
 /// The validated worker configuration.
@@ -102,8 +107,10 @@ pub(crate) fn checkpoint_interval(seconds: f64) -> Result<Duration> {
 }
 
 pub fn run_worker(args: &WorkerArgs) -> Result<()> {
-    let config = config(args)?;
-    crate::init_logging("info");
+    let mut config = config(args)?;
+    // Before logging starts: the Vulkan loader's INFO lines about opening a device are noise.
+    config.gpu = crate::backend::open_worker_gpu(args.gpu)?;
+    crate::init_logging("info,wgpu_core=warn,wgpu_hal=warn,naga=warn");
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     let summary = runtime.block_on(async move {
         run(config, crate::server_cmd::shutdown_signal())

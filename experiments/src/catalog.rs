@@ -11,6 +11,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use crate::aor::{Aor, AorSpec};
+use crate::backend::{BackendKind, Engine};
 use crate::drill::{Drill, DrillSpec};
 pub use crate::experiment::{
     CheckpointStore, Experiment, ExperimentError, Kind, NoCheckpoints, Outcome, KINDS,
@@ -133,14 +134,49 @@ impl ExperimentSpec {
         beds: &mut dyn BedStore,
         checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
+        self.run_on(Engine::Cpu, seed, progress, beds, checkpoints)
+    }
+
+    /// [`ExperimentSpec::run`] on `engine`; a kind or spec the engine does not run is
+    /// refused ([`ExperimentSpec::check_backend`]'s error), never run on the CPU instead. A
+    /// run on the GPU keeps no checkpoint.
+    pub fn run_on(
+        self,
+        engine: Engine<'_>,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        let (p, b, c, e) = (progress, beds, checkpoints, engine);
         match self {
-            ExperimentSpec::Aor(s) => Aor::run(s, seed, progress, beds, checkpoints),
-            ExperimentSpec::Drill(s) => Drill::run(s, seed, progress, beds, checkpoints),
-            ExperimentSpec::Shear(s) => Shear::run(s, seed, progress, beds, checkpoints),
-            ExperimentSpec::TableLookup(s) => {
-                TableLookup::run(s, seed, progress, beds, checkpoints)
-            }
-            ExperimentSpec::Formula(s) => Formula::run(s, seed, progress, beds, checkpoints),
+            ExperimentSpec::Aor(s) => Aor::run_on(s, seed, e, p, b, c),
+            ExperimentSpec::Drill(s) => Drill::run_on(s, seed, e, p, b, c),
+            ExperimentSpec::Shear(s) => Shear::run_on(s, seed, e, p, b, c),
+            ExperimentSpec::TableLookup(s) => TableLookup::run_on(s, seed, e, p, b, c),
+            ExperimentSpec::Formula(s) => Formula::run_on(s, seed, e, p, b, c),
+        }
+    }
+
+    /// Ok if the `backend` engine runs this spec (on the GPU: `aor`'s funnel without EPSD
+    /// rolling or cohesion); else [`ExperimentError::Unsupported`], naming what it lacks. A
+    /// job server asks at submission, before any worker opens a GPU.
+    pub fn check_backend(&self, backend: BackendKind) -> Result<(), ExperimentError> {
+        match self {
+            ExperimentSpec::Aor(s) => Aor::check_backend(s, backend),
+            ExperimentSpec::Drill(s) => Drill::check_backend(s, backend),
+            ExperimentSpec::Shear(s) => Shear::check_backend(s, backend),
+            ExperimentSpec::TableLookup(s) => TableLookup::check_backend(s, backend),
+            ExperimentSpec::Formula(s) => Formula::check_backend(s, backend),
+        }
+    }
+
+    /// [`ExperimentSpec::checkpoint_key`] of the run on `backend`: none on the GPU (a GPU run
+    /// neither keeps a checkpoint nor continues a CPU run's).
+    pub fn checkpoint_key_on(&self, backend: BackendKind, seed: u64) -> Option<String> {
+        match backend {
+            BackendKind::Cpu => self.checkpoint_key(seed),
+            BackendKind::Gpu => None,
         }
     }
 
@@ -486,6 +522,63 @@ mod tests {
             (formula.bed_key(7), formula.checkpoint_key(7)),
             (None, None)
         );
+    }
+
+    /// Only `aor`'s funnel without EPSD rolling or cohesion runs on the GPU; every other kind
+    /// and spec is refused by name and permanently (no worker's GPU runs it), and a GPU run
+    /// keeps no checkpoint while the CPU's key stays what it was.
+    #[test]
+    fn the_gpu_runs_the_aor_funnel_and_refuses_the_rest_by_name() {
+        let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
+        aor.check_backend(BackendKind::Gpu).unwrap();
+        for kind in Kind::ALL {
+            let spec = match kind {
+                Kind::TableLookup => json!({"values": {"a": 1.0}, "rows": [{"a": 1.0}]}),
+                Kind::Formula => json!({"inputs": {"x": 1.0}, "responses": {"y": "x"}}),
+                _ => json!({}),
+            };
+            let spec = kind.prepare(None, &spec).unwrap();
+            spec.check_backend(BackendKind::Cpu).unwrap();
+            if kind == Kind::Aor {
+                continue;
+            }
+            let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
+            assert!(
+                matches!(
+                    err,
+                    ExperimentError::Unsupported {
+                        backend: BackendKind::Gpu,
+                        ..
+                    }
+                ),
+                "{kind}: {err:?}"
+            );
+            assert!(err.is_permanent(), "{kind}");
+            assert!(err.to_string().contains(&format!("`{kind}`")), "{err}");
+        }
+        for (over, names) in [
+            (json!({"rolling_model": "epsd"}), "rolling_model"),
+            (json!({"protocol": "lifted_cylinder"}), "protocol"),
+            (
+                json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
+                "soil_steel.cohesion",
+            ),
+        ] {
+            let spec = Kind::Aor.prepare(Some("fast"), &over).unwrap();
+            spec.check_backend(BackendKind::Cpu).unwrap();
+            let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
+            assert!(
+                matches!(err, ExperimentError::Unsupported { .. }) && err.is_permanent(),
+                "{err:?}"
+            );
+            assert!(err.to_string().contains(names), "{over}: {err}");
+        }
+        assert_eq!(
+            aor.checkpoint_key_on(BackendKind::Cpu, 7),
+            aor.checkpoint_key(7)
+        );
+        assert!(aor.checkpoint_key(7).is_some());
+        assert_eq!(aor.checkpoint_key_on(BackendKind::Gpu, 7), None);
     }
 
     #[test]

@@ -13,6 +13,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use crate::backend::{BackendKind, Engine};
 use crate::progress::Control;
 use crate::soil::BedStore;
 
@@ -109,6 +110,32 @@ pub trait Experiment {
         checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError>;
 
+    /// Ok if the `backend` engine runs `spec`; else why not, naming what it does not simulate
+    /// ([`ExperimentError::Unsupported`]). The default: the CPU engine only. A kind that
+    /// overrides it overrides [`Experiment::run_on`] with it.
+    fn check_backend(_spec: &Self::Spec, backend: BackendKind) -> Result<(), ExperimentError> {
+        match backend {
+            BackendKind::Cpu => Ok(()),
+            other => Err(ExperimentError::cpu_only(Self::KIND, other)),
+        }
+    }
+
+    /// [`Experiment::run`] on `engine`. The default runs on the CPU engine only and refuses
+    /// any other ([`Experiment::check_backend`]'s refusal): never a silent run on the CPU.
+    fn run_on(
+        spec: Self::Spec,
+        seed: u64,
+        engine: Engine<'_>,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        match engine {
+            Engine::Cpu => Self::run(spec, seed, progress, beds, checkpoints),
+            Engine::Gpu(_) => Err(ExperimentError::cpu_only(Self::KIND, engine.kind())),
+        }
+    }
+
     /// The key of the settled bed the run with `seed` builds or reuses, for a kind that runs
     /// on one.
     fn bed_key(_spec: &Self::Spec, _seed: u64) -> Option<String> {
@@ -187,6 +214,14 @@ pub enum ExperimentError {
         /// seed may give a result (grains that arched over the funnel's outlet in this pour).
         another_seed_may_help: bool,
     },
+    /// The spec cannot run on the engine the job names: the kind runs on the CPU only, or the
+    /// `backend` engine does not simulate part of the spec (named). Permanent: no worker's
+    /// engine of that kind runs it.
+    #[error("{message}")]
+    Unsupported {
+        backend: BackendKind,
+        message: String,
+    },
     /// The progress callback cancelled the run.
     #[error("cancelled")]
     Cancelled,
@@ -204,6 +239,17 @@ impl ExperimentError {
         ExperimentError::InvalidSpec {
             path: None,
             message: e.to_string(),
+        }
+    }
+
+    /// A kind that runs on the CPU engine only, asked to run on `backend`.
+    pub fn cpu_only(kind: Kind, backend: BackendKind) -> ExperimentError {
+        ExperimentError::Unsupported {
+            backend,
+            message: format!(
+                "the `{kind}` experiment runs on the CPU backend only, not the {} backend",
+                backend.label()
+            ),
         }
     }
 
@@ -230,7 +276,9 @@ impl ExperimentError {
     pub fn is_permanent(&self) -> bool {
         // (A failure another seed may cure is permanent for this seed all the same.)
         match self {
-            ExperimentError::InvalidSpec { .. } | ExperimentError::NoResult { .. } => true,
+            ExperimentError::InvalidSpec { .. }
+            | ExperimentError::NoResult { .. }
+            | ExperimentError::Unsupported { .. } => true,
             ExperimentError::UnknownKind { .. }
             | ExperimentError::UnknownPreset { .. }
             | ExperimentError::Cancelled
@@ -264,6 +312,9 @@ pub struct Outcome {
     /// Seconds a worker should keep the job before reporting (the table-lookup test aid's
     /// stand-in for simulation time); 0 for real experiments.
     pub hold_s: f64,
+    /// The engine that computed it, for provenance: the CPU engine's version, or
+    /// `<version>+gpu:<adapter>` ([`Engine::engine_version`]).
+    pub engine_version: String,
 }
 
 /// Checkpoints of long runs kept between attempts: a worker keeps them on disk, so a run whose

@@ -524,7 +524,10 @@ fn workers_section(data: &StatusData) -> Markup {
                 @for w in &data.workers {
                     tr {
                         td { (w.view.host) br; span.muted { code { (short_id(w.view.id)) } } }
-                        td.num { (w.view.threads) }
+                        td.num {
+                            (w.view.threads)
+                            @if let Some(gpu) = &w.view.gpu { br; span.muted { "GPU " (gpu) } }
+                        }
                         td { (w.view.version) }
                         td {
                             (ago(data.now_ms, w.view.last_seen_at_ms))

@@ -235,12 +235,16 @@ pub fn plan_batch(request: BatchRequest, fallback_seed: u64) -> Result<PlannedBa
 }
 
 /// The complete experiment spec of `kind` (preset + overrides), checked by the experiment
-/// catalog, as the JSON the runs are written into.
+/// catalog, also for the engine it names (`experiment.backend`), as the JSON the runs are
+/// written into.
 fn prepare_template(request: &BatchRequest, kind: Kind) -> Result<Value, AppError> {
     let experiment = &request.experiment;
-    kind.prepare(experiment.preset.as_deref(), &experiment.spec)
-        .map(|spec| spec.to_value())
-        .map_err(experiment_error)
+    let spec = kind
+        .prepare(experiment.preset.as_deref(), &experiment.spec)
+        .map_err(experiment_error)?;
+    spec.check_backend(experiment.backend)
+        .map_err(experiment_error)?;
+    Ok(spec.to_value())
 }
 
 /// A catalog error at submission, blaming the request field to fix.
@@ -251,6 +255,9 @@ fn experiment_error(err: ExperimentError) -> AppError {
         }
         ExperimentError::UnknownPreset { .. } => {
             AppError::invalid("experiment.preset", err.to_string())
+        }
+        ExperimentError::Unsupported { .. } => {
+            AppError::invalid("experiment.backend", err.to_string())
         }
         ExperimentError::InvalidSpec {
             path: Some(ref path),
@@ -268,7 +275,9 @@ fn check_run_spec(
     spec: &Value,
     natural: &[f64],
 ) -> Result<(), AppError> {
-    let Err(err) = ExperimentSpec::parse(kind, spec) else {
+    let Err(err) = ExperimentSpec::parse(kind, spec)
+        .and_then(|parsed| parsed.check_backend(request.experiment.backend))
+    else {
         return Ok(());
     };
     let blamed = match &err {
@@ -287,6 +296,10 @@ fn check_run_spec(
                 "the design sets `{}` to {}, which the experiment rejects: {err}",
                 request.factors[i].name, natural[i]
             ),
+        ),
+        None if matches!(err, ExperimentError::Unsupported { .. }) => AppError::invalid(
+            "experiment.backend",
+            format!("a run's spec, with the design's factor values: {err}"),
         ),
         None => AppError::invalid(
             "experiment.spec",

@@ -31,7 +31,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rand::Rng;
+use repose_api::BackendKind;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
+use repose_experiments::backend::{Engine, Gpu};
 use repose_experiments::catalog::{
     BedStore, CheckpointStore, ExperimentError, ExperimentSpec, NoBedStore, NoCheckpoints, Outcome,
 };
@@ -81,6 +83,11 @@ pub struct WorkerConfig {
     /// Release reported at registration; the server accepts only its own `MAJOR.MINOR`.
     /// Always this build's release ([`repose_api::version::RELEASE`]) except in tests.
     pub version: String,
+    /// The GPU this worker runs `gpu` jobs on, opened once by its caller ([`Gpu::open`];
+    /// `repose worker --gpu`) and shared by its slots: the worker names its adapter at
+    /// registration, so the server hands it `gpu` jobs too. None: CPU jobs only (the server
+    /// gives it no `gpu` job).
+    pub gpu: Option<Arc<Gpu>>,
 }
 
 impl WorkerConfig {
@@ -101,6 +108,7 @@ impl WorkerConfig {
             checkpoint_every: Duration::from_secs(300),
             exit_when_idle: None,
             version: repose_api::version::RELEASE.to_owned(),
+            gpu: None,
         }
     }
 }
@@ -183,6 +191,7 @@ pub async fn run(
         host: config.host.clone(),
         threads: u32::try_from(config.threads).unwrap_or(u32::MAX),
         version: config.version.clone(),
+        gpu: config.gpu.as_ref().map(|gpu| gpu.name().to_owned()),
     };
     let registered = {
         let mut backoff = Backoff::new(config.max_backoff);
@@ -206,7 +215,8 @@ pub async fn run(
     let lease = Duration::try_from_secs_f64(registered.lease_s.clamp(1.0, 86_400.0))
         .unwrap_or(Duration::from_secs(60));
     tracing::info!(worker = %registered.worker_id, server = %config.server, slots = config.slots,
-        threads = config.threads, "worker registered");
+        threads = config.threads, gpu = config.gpu.as_ref().map_or("none".into(), |g| g.describe()),
+        "worker registered");
 
     let context = Arc::new(SlotContext {
         client,
@@ -307,7 +317,7 @@ async fn slot_loop(context: Arc<SlotContext>, slot: usize) -> WorkerSummary {
                 backoff.reset();
                 context.busy.fetch_add(1, Ordering::SeqCst);
                 tracing::info!(slot, job = %job.job_id, run = %job.run_id, kind = %job.kind,
-                    attempt = job.attempt, "job leased");
+                    backend = %job.backend, attempt = job.attempt, "job leased");
                 let end = run_job(&context, job).await;
                 if let Ok(mut since) = context.idle_since.lock() {
                     *since = Instant::now();
@@ -383,7 +393,7 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
     let checkpoint_key = parsed
         .as_ref()
         .ok()
-        .and_then(|spec| spec.checkpoint_key(job.seed));
+        .and_then(|spec| spec.checkpoint_key_on(job.backend, job.seed));
 
     let heartbeat = tokio::spawn(heartbeat_loop(
         context.client.clone(),
@@ -406,13 +416,19 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
         Ok(spec) => {
             let signals = signals.clone();
             let (threads, seed) = (context.config.threads, job.seed);
+            let engine = Runner {
+                backend: job.backend,
+                gpu: context.config.gpu.clone(),
+            };
             let stores = Stores {
                 bed_cache: context.config.bed_cache.clone(),
                 checkpoint_dir: context.config.checkpoint_dir.clone(),
                 checkpoint_every: context.config.checkpoint_every,
             };
-            tokio::task::spawn_blocking(move || simulate(spec, seed, threads, stores, &signals))
-                .await
+            tokio::task::spawn_blocking(move || {
+                simulate(spec, engine, seed, threads, stores, &signals)
+            })
+            .await
         }
         Err(error) => Ok(Err(error)),
     };
@@ -460,7 +476,7 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
                 metrics: outcome.metrics,
                 wall_time_s,
                 details: outcome.details,
-                engine_version: Some(repose_experiments::ENGINE_VERSION.to_owned()),
+                engine_version: Some(outcome.engine_version),
                 pictures,
             };
             deliver(context, job.job_id, "complete", |c| {
@@ -644,14 +660,33 @@ struct Stores {
     checkpoint_every: Duration,
 }
 
-/// Runs the experiment on a fresh pool of `threads` threads (results do not depend on it).
+/// The engine a job asks for, and this worker's GPU if it opened one.
+#[derive(Debug, Clone, Default)]
+struct Runner {
+    backend: BackendKind,
+    gpu: Option<Arc<Gpu>>,
+}
+
+/// Runs the experiment on the job's engine, on a fresh pool of `threads` threads (results do
+/// not depend on it). A `gpu` job on a worker without a GPU (a server that does not sort jobs
+/// by backend) is this worker's failure, never a run on the CPU.
 fn simulate(
     spec: ExperimentSpec,
+    runner: Runner,
     seed: u64,
     threads: usize,
     stores: Stores,
     signals: &JobSignals,
 ) -> Result<Outcome, ExperimentError> {
+    let engine = match (runner.backend, &runner.gpu) {
+        (BackendKind::Cpu, _) => Engine::Cpu,
+        (BackendKind::Gpu, Some(gpu)) => Engine::Gpu(gpu),
+        (BackendKind::Gpu, None) => {
+            return Err(ExperimentError::Local {
+                message: "a gpu job, but this worker opened no GPU (start it with --gpu)".into(),
+            })
+        }
+    };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -667,7 +702,8 @@ fn simulate(
         None => Box::new(NoCheckpoints),
     };
     pool.install(|| {
-        spec.run(
+        spec.run_on(
+            engine,
             seed,
             &mut |fraction| {
                 signals
@@ -762,12 +798,35 @@ mod tests {
         let spec = serde_json::json!({"values": {"a": 1.0}, "rows": [{"a": 1.0, "y": 2.0}]});
         let spec = ExperimentSpec::parse_job("table_lookup", &spec).unwrap();
         let signals = JobSignals::default();
-        let outcome = simulate(spec.clone(), 0, 1, Stores::default(), &signals).unwrap();
-        assert_eq!(outcome.metrics["y"], 2.0);
+        let cpu = Runner::default();
+        let outcome = simulate(spec.clone(), cpu.clone(), 0, 1, Stores::default(), &signals);
+        assert_eq!(outcome.unwrap().metrics["y"], 2.0);
         signals.cancel.store(true, Ordering::SeqCst);
         assert!(matches!(
-            simulate(spec, 0, 1, Stores::default(), &signals),
+            simulate(spec, cpu, 0, 1, Stores::default(), &signals),
             Err(ExperimentError::Cancelled)
         ));
+    }
+
+    #[test]
+    fn a_gpu_job_without_a_gpu_is_this_workers_failure_not_a_cpu_run() {
+        let spec = serde_json::json!({"values": {"a": 1.0}, "rows": [{"a": 1.0, "y": 2.0}]});
+        let spec = ExperimentSpec::parse_job("table_lookup", &spec).unwrap();
+        let no_gpu = Runner {
+            backend: BackendKind::Gpu,
+            gpu: None,
+        };
+        let err = simulate(
+            spec,
+            no_gpu,
+            0,
+            1,
+            Stores::default(),
+            &JobSignals::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(err, ExperimentError::Local { .. }), "{err:?}");
+        assert!(!err.is_permanent());
+        assert!(err.to_string().contains("--gpu"), "{err}");
     }
 }

@@ -6,8 +6,11 @@ use std::collections::BTreeMap;
 use serde_json::Value;
 
 use super::checkpoint::{checkpoint_key, AorCheckpoint};
-use super::run::{run_aor_with_checkpoints, Checkpoints, RunStatus};
+use super::run::{
+    check_backend, run_aor_on, run_aor_with_checkpoints, AorError, AorRun, Checkpoints, RunStatus,
+};
 use super::spec::{AorSpec, PRESETS};
+use crate::backend::{BackendError, BackendKind, Engine};
 use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 use crate::soil::BedStore;
@@ -35,36 +38,44 @@ impl Experiment for Aor {
     /// removes its checkpoint. The outcome is the same, bit for bit, whether the run went
     /// through in one go or was continued (`details.resumed_at_step` says which).
     fn run(
+        spec: AorSpec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        Aor::run_on(spec, seed, Engine::Cpu, progress, beds, checkpoints)
+    }
+
+    /// [`check_backend`]: the GPU runs the funnel without EPSD rolling or cohesion.
+    fn check_backend(spec: &AorSpec, backend: BackendKind) -> Result<(), ExperimentError> {
+        check_backend(backend, spec).map_err(|e| run_error(backend, e))
+    }
+
+    /// On the CPU, [`Experiment::run`] as documented there. On the GPU the run keeps no
+    /// checkpoint and continues none (`checkpoints` is not used: a GPU run cannot be continued
+    /// from a saved state, and a CPU checkpoint of the same spec is never taken for one); a
+    /// GPU failure during the run (a lost device, a capacity overflow) is this machine's
+    /// ([`ExperimentError::Local`]), so the job may run again.
+    fn run_on(
         mut spec: AorSpec,
         seed: u64,
+        engine: Engine<'_>,
         progress: &mut dyn FnMut(f64) -> Control,
         _beds: &mut dyn BedStore,
         checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
         spec.seed = seed;
-        let key = checkpoint_key(&spec);
-        let resume = checkpoints.get(&key).and_then(|bytes| {
-            let saved = AorCheckpoint::from_bytes(&bytes)
-                .and_then(|saved| saved.check_spec(&spec).map(|()| saved));
-            saved
-                .map_err(|e| checkpoints.reject(&key, &e.to_string()))
-                .ok()
-        });
-        let every = checkpoints.every();
-        let mut keep = |bytes: &[u8]| checkpoints.put(&key, bytes);
-        let run = run_aor_with_checkpoints(
-            &spec,
-            &mut |p| progress(p.fraction),
-            Checkpoints {
-                resume,
-                save: Some(&mut keep),
-                every,
-            },
-        )
-        .map_err(|e| ExperimentError::refused(&e))?;
-        if run.result.status != RunStatus::Cancelled {
-            checkpoints.remove(&key);
+        let run = match engine {
+            Engine::Cpu => run_on_cpu(&spec, progress, checkpoints),
+            Engine::Gpu(_) => run_aor_on(
+                engine,
+                &spec,
+                &mut |p| progress(p.fraction),
+                Checkpoints::default(),
+            ),
         }
+        .map_err(|e| run_error(engine.kind(), e))?;
         let details = serde_json::to_value(&run.result).expect("AorResult serialises");
         // A heap still creeping when the time cap ends the run (constant-torque rolling
         // friction never quite stops) is measured as it stands and flagged
@@ -124,6 +135,10 @@ impl Experiment for Aor {
             details,
             pictures,
             hold_s: 0.0,
+            engine_version: run
+                .result
+                .engine_version
+                .unwrap_or_else(|| engine.engine_version()),
         })
     }
 
@@ -132,5 +147,100 @@ impl Experiment for Aor {
         let mut spec = spec.clone();
         spec.seed = seed;
         Some(checkpoint_key(&spec))
+    }
+}
+
+/// The CPU run, continued from and checkpointed to `checkpoints` under [`checkpoint_key`].
+fn run_on_cpu(
+    spec: &AorSpec,
+    progress: &mut dyn FnMut(f64) -> Control,
+    checkpoints: &mut dyn CheckpointStore,
+) -> Result<AorRun, AorError> {
+    let key = checkpoint_key(spec);
+    let resume = checkpoints.get(&key).and_then(|bytes| {
+        let saved = AorCheckpoint::from_bytes(&bytes)
+            .and_then(|saved| saved.check_spec(spec).map(|()| saved));
+        saved
+            .map_err(|e| checkpoints.reject(&key, &e.to_string()))
+            .ok()
+    });
+    let every = checkpoints.every();
+    let run = {
+        let mut keep = |bytes: &[u8]| checkpoints.put(&key, bytes);
+        run_aor_with_checkpoints(
+            spec,
+            &mut |p| progress(p.fraction),
+            Checkpoints {
+                resume,
+                save: Some(&mut keep),
+                every,
+            },
+        )?
+    };
+    if run.result.status != RunStatus::Cancelled {
+        checkpoints.remove(&key);
+    }
+    Ok(run)
+}
+
+/// A run that could not start or failed on `backend`, as the catalog reports it: what the
+/// backend does not simulate is [`ExperimentError::Unsupported`], a GPU failure this
+/// machine's ([`ExperimentError::Local`]), anything else the spec's refusal.
+fn run_error(backend: BackendKind, e: AorError) -> ExperimentError {
+    match e {
+        AorError::Backend(BackendError::Unsupported { .. }) => ExperimentError::Unsupported {
+            backend,
+            message: e.to_string(),
+        },
+        AorError::Backend(BackendError::Gpu(message)) => ExperimentError::Local {
+            message: format!("the {} backend failed: {message}", backend.label()),
+        },
+        e => ExperimentError::refused(&e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A GPU that fails during a run is the machine's failure (the job runs again); what the
+    /// GPU does not simulate is the spec's, for good; the CPU's refusals stay the spec's.
+    #[test]
+    fn a_gpu_failure_mid_run_is_retried_and_an_unsupported_scene_is_not() {
+        let lost = run_error(
+            BackendKind::Gpu,
+            AorError::Backend(BackendError::Gpu("GPU device error: lost".into())),
+        );
+        assert!(matches!(lost, ExperimentError::Local { .. }), "{lost:?}");
+        assert!(!lost.is_permanent());
+        assert!(lost.to_string().contains("GPU backend failed"), "{lost}");
+        let unsupported = run_error(
+            BackendKind::Gpu,
+            AorError::Backend(BackendError::Unsupported {
+                backend: "GPU",
+                what: "cohesion".into(),
+            }),
+        );
+        assert!(
+            matches!(
+                unsupported,
+                ExperimentError::Unsupported {
+                    backend: BackendKind::Gpu,
+                    ..
+                }
+            ),
+            "{unsupported:?}"
+        );
+        assert!(unsupported.is_permanent());
+        let mut bad = AorSpec::fast();
+        bad.total_mass = -1.0;
+        let refused = run_error(
+            BackendKind::Cpu,
+            check_backend(BackendKind::Cpu, &bad).unwrap_err(),
+        );
+        assert!(
+            matches!(refused, ExperimentError::InvalidSpec { .. }),
+            "{refused:?}"
+        );
     }
 }

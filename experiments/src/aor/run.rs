@@ -27,6 +27,7 @@ use super::picture::{side_view_svg, PictureOptions};
 use super::rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 use super::spec::{AorSpec, Protocol, SpecError};
 use crate::backend::{Backend, BackendError, BackendKind, Engine, Grains};
+use crate::soil::RollingSpec;
 // The progress callback's types (phases here: `filling`, `lifting`, `settling`, `measuring`;
 // filling is the first half of the fraction, settling the second).
 pub use crate::progress::{Control, Progress};
@@ -581,19 +582,34 @@ pub fn run_aor_with_checkpoints(
     run_aor_on(Engine::Cpu, spec, progress, checkpoints)
 }
 
-/// Ok if the `kind` backend runs `spec`'s protocol; else the error [`run_aor_on`] would give
-/// (the GPU backend does not lift the cylinder's tube: a moving geometry). A caller may ask
-/// before it opens a GPU. What the backend refuses in the world the spec builds (EPSD rolling,
-/// cohesion on the GPU) only the run finds, and names.
+/// Ok if the `kind` backend runs `spec`'s protocol; else the error [`run_aor_on`] would give:
+/// the GPU backend does not lift the cylinder's tube (a moving geometry), nor simulate EPSD
+/// rolling or cohesion. Every refusal names the spec's field. A caller may ask before it opens
+/// a GPU (a job server asks at submission).
 pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> {
     spec.validate()?;
-    if kind == BackendKind::Gpu && spec.protocol == Protocol::LiftedCylinder {
-        return Err(AorError::Backend(BackendError::Unsupported {
-            backend: kind.label(),
-            what: "the lifted-cylinder protocol (its tube is lifted: a moving geometry)".into(),
-        }));
+    if kind != BackendKind::Gpu {
+        return Ok(());
     }
-    Ok(())
+    let cohesive = [
+        ("soil_soil", &spec.soil_soil),
+        ("soil_steel", &spec.soil_steel),
+    ]
+    .into_iter()
+    .find(|(_, pair)| !pair.cohesion.is_none());
+    let what = if spec.protocol == Protocol::LiftedCylinder {
+        "the lifted-cylinder protocol (`protocol`: its tube is lifted, a moving geometry)".into()
+    } else if spec.rolling_model == RollingSpec::Epsd {
+        "the elastic-plastic spring-dashpot (EPSD) rolling model (`rolling_model`)".into()
+    } else if let Some((pair, _)) = cohesive {
+        format!("cohesion (`{pair}.cohesion`)")
+    } else {
+        return Ok(());
+    };
+    Err(AorError::Backend(BackendError::Unsupported {
+        backend: kind.label(),
+        what,
+    }))
 }
 
 /// [`run_aor_with_checkpoints`] on `engine`: the same rig, run loop, rest rule and

@@ -18,37 +18,10 @@ pub use repose_engine_gpu::Gpu;
 use repose_engine::factory::ParticleSource;
 use repose_engine::math::Vec3;
 use repose_engine::world::{Geometry, World};
-use serde::{Deserialize, Serialize};
 
 /// Which engine runs an experiment, as a spec, a job or a command line names it (serde `cpu`,
-/// `gpu`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BackendKind {
-    /// The CPU engine: the reference, deterministic for any thread count.
-    #[default]
-    Cpu,
-    /// The GPU engine (`repose-engine-gpu`): deterministic per adapter, f32.
-    Gpu,
-}
-
-impl BackendKind {
-    /// `cpu` or `gpu` (the serde and command-line name).
-    pub fn name(self) -> &'static str {
-        match self {
-            BackendKind::Cpu => "cpu",
-            BackendKind::Gpu => "gpu",
-        }
-    }
-
-    /// `CPU` or `GPU`, for messages.
-    pub fn label(self) -> &'static str {
-        match self {
-            BackendKind::Cpu => "CPU",
-            BackendKind::Gpu => "GPU",
-        }
-    }
-}
+/// `gpu`); a wire type, so it lives in `repose-api`.
+pub use repose_api::BackendKind;
 
 /// The engine a run uses, ready to start: the CPU, or an opened GPU.
 #[derive(Debug, Clone, Copy)]

@@ -6,6 +6,7 @@ use serde_json::Value;
 use super::bed::bed_key;
 use super::run::{DrillError, DrillStatus};
 use super::spec::{DrillSpec, PRESETS};
+use crate::backend::Engine;
 use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 use crate::soil::{run_on_bed, BedStore};
@@ -62,6 +63,7 @@ impl Experiment for Drill {
                 ("forces.svg".to_owned(), run.forces_svg()),
             ],
             hold_s: 0.0,
+            engine_version: Engine::Cpu.engine_version(),
         })
     }
 

@@ -122,6 +122,8 @@ impl Experiment for Formula {
             metrics: evaluation.metrics,
             pictures: Vec::new(),
             hold_s: 0.0,
+            // A test aid runs no engine; it answers for this build's.
+            engine_version: crate::ENGINE_VERSION.to_owned(),
         })
     }
 }

@@ -5,6 +5,7 @@ use serde_json::Value;
 
 use super::run::{sample_key, ShearError, ShearStatus};
 use super::spec::{ShearSpec, PRESETS};
+use crate::backend::Engine;
 use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 use crate::soil::{run_on_bed, BedStore};
@@ -59,6 +60,7 @@ impl Experiment for Shear {
                 ("mohr_coulomb.svg".to_owned(), run.strength_svg()),
             ],
             hold_s: 0.0,
+            engine_version: Engine::Cpu.engine_version(),
         })
     }
 

@@ -276,8 +276,8 @@ pub(super) async fn insert_batch_tx(
     sqlx::query(
         "INSERT INTO batches (id, name, kind, request, factors, design_kind, response, model,
                                   target, base_seed, state, created_at, owner, keep_pictures,
-                                  template)
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?, ?, ?)",
+                                  template, backend)
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'active', ?, ?, ?, ?, ?)",
     )
     .bind(batch_id.to_string())
     .bind(&request.name)
@@ -293,6 +293,7 @@ pub(super) async fn insert_batch_tx(
     .bind(owner)
     .bind(request.keep_pictures)
     .bind(serde_json::to_string(&plan.template)?)
+    .bind(request.experiment.backend.name())
     .execute(&mut **tx)
     .await?;
     // Multi-row inserts: a 10,000-run batch is 100 statements, not 20,000, and holds the

@@ -91,11 +91,12 @@ impl Db {
         let result = async {
             let changed = sqlx::query(
                 "INSERT INTO workers (id, host, threads, version, registered_at, last_seen_at,
-                                      token)
-                 VALUES (?, ?, ?, ?, ?, ?, ?)
+                                      token, gpu)
+                 VALUES (?, ?, ?, ?, ?, ?, ?, ?)
                  ON CONFLICT (id) DO UPDATE SET host = excluded.host,
                      threads = excluded.threads, version = excluded.version,
-                     last_seen_at = excluded.last_seen_at, token = excluded.token
+                     last_seen_at = excluded.last_seen_at, token = excluded.token,
+                     gpu = excluded.gpu
                  WHERE workers.token IS NULL OR workers.token = excluded.token",
             )
             .bind(worker.instance_id.to_string())
@@ -105,6 +106,7 @@ impl Db {
             .bind(now)
             .bind(now)
             .bind(token)
+            .bind(worker.gpu.as_deref())
             .execute(&mut *tx)
             .await?
             .rows_affected();
@@ -190,13 +192,17 @@ impl Db {
 
             let token = Uuid::new_v4();
             let expires_at = now + duration_ms(lease);
-            // One round trip: record the lease for the oldest available job, then lease that job
+            // One round trip: record the lease for the oldest available job this worker can
+            // run (a `gpu` batch's only if it registered a GPU adapter), then lease that job
             // (found through its new lease) and return what the worker needs. Plain `?`
             // placeholders, bound in order across both statements.
             let claimed = sqlx::query(
                 "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
                  SELECT ?, id, ?, attempts + 1, ? FROM jobs
                  WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND available_at <= ?
+                               AND ((SELECT gpu FROM workers WHERE workers.id = ?) IS NOT NULL
+                                    OR (SELECT backend FROM batches
+                                        WHERE batches.id = jobs.batch_id) = 'cpu')
                              ORDER BY available_at, rowid LIMIT 1);
                  UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
                                  lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
@@ -206,6 +212,8 @@ impl Db {
                            (SELECT natural FROM runs WHERE runs.id = jobs.run_id) AS natural,
                            (SELECT seed FROM runs WHERE runs.id = jobs.run_id) AS seed,
                            (SELECT kind FROM batches WHERE batches.id = jobs.batch_id) AS kind,
+                           (SELECT backend FROM batches WHERE batches.id = jobs.batch_id)
+                               AS backend,
                            (SELECT keep_pictures FROM batches WHERE batches.id = jobs.batch_id)
                                AS keep_pictures",
             )
@@ -213,6 +221,7 @@ impl Db {
             .bind(worker_id.to_string())
             .bind(now)
             .bind(now)
+            .bind(worker_id.to_string())
             .bind(token.to_string())
             .bind(expires_at)
             .bind(worker_id.to_string())
@@ -242,6 +251,7 @@ impl Db {
                     run_id: parse_uuid(&run_id)?,
                     batch_id,
                     kind: claimed.try_get("kind")?,
+                    backend: backend_from_db(claimed.try_get("backend")?)?,
                     spec,
                     seed: claimed.try_get::<i64, _>("seed")? as u64,
                     attempt: attempt as u32,
@@ -317,7 +327,7 @@ impl Db {
     /// Registered workers, most recently seen first, with the number of leases each holds.
     pub async fn list_workers(&self, limit: u32) -> Result<Vec<WorkerView>, DbError> {
         let rows = sqlx::query(
-            "SELECT w.id, w.host, w.threads, w.version, w.registered_at, w.last_seen_at,
+            "SELECT w.id, w.host, w.threads, w.version, w.gpu, w.registered_at, w.last_seen_at,
                     (SELECT COUNT(*) FROM jobs j
                      WHERE j.worker_id = w.id AND j.state = 'leased') AS running_jobs
              FROM workers w ORDER BY w.last_seen_at DESC, w.rowid DESC LIMIT ?",
@@ -332,6 +342,7 @@ impl Db {
                     host: row.try_get("host")?,
                     threads: row.try_get::<i64, _>("threads")? as u32,
                     version: row.try_get("version")?,
+                    gpu: row.try_get("gpu")?,
                     registered_at_ms: row.try_get("registered_at")?,
                     last_seen_at_ms: row.try_get("last_seen_at")?,
                     running_jobs: row.try_get::<i64, _>("running_jobs")? as u64,

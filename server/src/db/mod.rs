@@ -16,8 +16,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use repose_api::{
-    apply_factor_values, AnalysisView, BatchState, BatchStatus, BatchSummary, ClaimResponse,
-    Completion, FactorValue, JobView, ModelName, RunState, RunView, StateCounts,
+    apply_factor_values, AnalysisView, BackendKind, BatchState, BatchStatus, BatchSummary,
+    ClaimResponse, Completion, FactorValue, JobView, ModelName, RunState, RunView, StateCounts,
     WorkerRegistration, WorkerView,
 };
 use repose_doe::design::{DesignKind, Factor};
@@ -489,6 +489,14 @@ impl LeaseOutcome {
 
 fn run_state_from_job(text: &str) -> Result<RunState, DbError> {
     JobState::from_db(text).map(RunState::from)
+}
+
+fn backend_from_db(text: &str) -> Result<BackendKind, DbError> {
+    match text {
+        "cpu" => Ok(BackendKind::Cpu),
+        "gpu" => Ok(BackendKind::Gpu),
+        other => Err(DbError::Corrupt(format!("stored backend {other:?}"))),
+    }
 }
 
 fn model_to_db(model: ModelName) -> &'static str {

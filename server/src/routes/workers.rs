@@ -26,13 +26,23 @@ pub(super) async fn register_worker(
 ) -> Result<impl IntoResponse, AppError> {
     submit::check_name_length("host", &registration.host)?;
     submit::check_name_length("version", &registration.version)?;
+    if let Some(gpu) = &registration.gpu {
+        if gpu.trim().is_empty() {
+            return Err(AppError::invalid(
+                "gpu",
+                "must name the adapter (leave it out for a CPU-only worker)",
+            ));
+        }
+        submit::check_name_length("gpu", gpu)?;
+    }
     repose_api::check_worker_version(state.config.release, &registration.version)
         .map_err(|refusal| AppError::invalid("version", refusal.to_string()))?;
     let released = state
         .db
         .register_worker(&registration, &caller.name)
         .await?;
-    tracing::info!(worker = %registration.instance_id, host = %registration.host, "worker registered");
+    tracing::info!(worker = %registration.instance_id, host = %registration.host,
+        gpu = registration.gpu.as_deref().unwrap_or("none"), "worker registered");
     if released > 0 {
         tracing::info!(worker = %registration.instance_id, jobs = released,
             "jobs the worker held before it restarted went back to the queue");

@@ -2,6 +2,7 @@
 //! run side by side): `cargo test -p repose-server --test server <file>::`.
 
 mod access;
+mod backend;
 mod backup;
 mod campaign;
 mod common;

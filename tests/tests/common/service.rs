@@ -199,6 +199,17 @@ impl Service {
     /// [`Service::start_worker`] through a launcher (e.g. `ip netns exec NS`), which must exec
     /// the worker so that killing the child kills the worker.
     pub fn start_worker_via(&self, name: &str, launcher: &[&str], extra: &[&str]) -> Proc {
+        self.start_worker_with(name, launcher, extra, &[])
+    }
+
+    /// [`Service::start_worker_via`] with extra environment variables.
+    pub fn start_worker_with(
+        &self,
+        name: &str,
+        launcher: &[&str],
+        extra: &[&str],
+        env: &[(&str, &str)],
+    ) -> Proc {
         let (log, file) = log_file(&self.dir, name);
         let mut command = match launcher.split_first() {
             Some((program, args)) => {
@@ -213,6 +224,7 @@ impl Service {
             .args(extra)
             .env("REPOSE_WORKER_TOKEN", &self.worker_token)
             .env("RUST_LOG", "info")
+            .envs(env.iter().copied())
             .stdout(Stdio::null())
             .stderr(Stdio::from(file))
             .spawn()

@@ -183,11 +183,22 @@ impl TestServer {
 
     /// Registers a worker under `worker` (again, if it registered before).
     pub async fn register_as(&self, worker: Uuid) -> Uuid {
+        self.register_with(worker, None).await
+    }
+
+    /// Registers a fresh worker that names the GPU adapter `adapter` (it may claim gpu jobs).
+    pub async fn register_gpu(&self, adapter: &str) -> Uuid {
+        self.register_with(Uuid::new_v4(), Some(adapter)).await
+    }
+
+    /// Registers a worker under `worker`, with the GPU adapter `gpu` if any.
+    pub async fn register_with(&self, worker: Uuid, gpu: Option<&str>) -> Uuid {
         let registration = WorkerRegistration {
             instance_id: worker,
             host: "test-host".into(),
             threads: 1,
             version: repose_api::version::RELEASE.into(),
+            gpu: gpu.map(str::to_owned),
         };
         let (status, body) = self
             .post(
