@@ -176,16 +176,28 @@ pub fn run_batch_with(
     batch: &BatchRequest,
     mut simulate: impl FnMut(&Value, u64) -> Result<BTreeMap<String, f64>, String>,
 ) -> StageResult {
+    run_batch_at(index, batch, |natural, seed| {
+        let spec = apply_factor_values(
+            &batch.experiment.spec,
+            FactorSpec::assignments(&batch.factors, natural),
+        )
+        .expect("factor paths exist");
+        simulate(&spec, seed)
+    })
+}
+
+/// Runs a batch: `simulate(factor values, seed)` gives each run's metrics (or an error string,
+/// which makes the run dead).
+pub fn run_batch_at(
+    index: usize,
+    batch: &BatchRequest,
+    mut simulate: impl FnMut(&[f64], u64) -> Result<BTreeMap<String, f64>, String>,
+) -> StageResult {
     let runs = expand(batch)
         .into_iter()
         .enumerate()
         .map(|(i, (row, rep, seed, coded, natural))| {
-            let spec = apply_factor_values(
-                &batch.experiment.spec,
-                FactorSpec::assignments(&batch.factors, &natural),
-            )
-            .expect("factor paths exist");
-            let result = simulate(&spec, seed);
+            let result = simulate(&natural, seed);
             let ok = result.is_ok();
             RunView {
                 id: Uuid::from_u128((index as u128) << 64 | i as u128),
