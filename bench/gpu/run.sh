@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# The GPU backend's speed figures on a machine with a GPU and no Rust toolchain, in one call
+# (issue 38): the engine benchmark at 20 k, 200 k and 2 M grains (GPU against the CPU engine on
+# the same bed), then the funnel on the GPU at `fast` (seeds 1-N, one process at a time: several
+# GPU processes at once hung on an H200), `paper-scale` and `fine`, each alone and each under a
+# hard time limit, so a hung run costs its limit and not the call.
+#
+#   REPOSE=path/to/repose BUDGET_S=560 bash bench/gpu/run.sh
+#
+# REPOSE: a release build (strip it to carry it: CARGO_PROFILE_RELEASE_DEBUG=0
+# CARGO_PROFILE_RELEASE_STRIP=symbols cargo build --release -p repose). SEEDS: fast seeds
+# (default 12). CPU_SEEDS: also pour the fast seeds on the CPU engine, all at once, one thread
+# each (default 1). BENCH: run the engine benchmark first (default 1). BUDGET_S: the seconds the
+# whole script may take; `fine` gets what is left. Every figure is printed; the runs' result.json
+# files are under $WORK (default /tmp/repose-gpu).
+set -u
+REPOSE=${REPOSE:-repose}
+SEEDS=${SEEDS:-12}
+CPU_SEEDS=${CPU_SEEDS:-1}
+BENCH=${BENCH:-1}
+BUDGET_S=${BUDGET_S:-560}
+WORK=${WORK:-/tmp/repose-gpu}
+T0=$(date +%s)
+elapsed() { echo $(( $(date +%s) - T0 )); }
+stamp() { echo "== $(elapsed) s: $*"; }
+mkdir -p "$WORK"
+summary() {
+    python3 - "$@" <<'PY'
+import json, sys
+for f in sys.argv[1:]:
+    try:
+        d = json.load(open(f))
+    except Exception as e:
+        print(f"{f}: no result ({e})")
+        continue
+    print(f"{f.split('/')[-2]}: {d.get('status')} angle {d.get('angle_deg')} wall {d.get('wall_time_s', 0):.1f} s "
+          f"steps {d.get('steps')} simulated {d.get('simulated_time_s', 0):.2f} s {d.get('ended_by')} {d.get('engine_version')}")
+PY
+}
+nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/dev/null
+lscpu | grep -E "Model name" | head -1
+echo "cores: $(nproc)"
+if [ "$BENCH" = 1 ]; then
+    B="timeout -s KILL"
+    stamp "engine benchmark, 20 k"
+    $B 60 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 20000 --steps 5000 --cpu-steps 200
+    stamp "engine benchmark, 200 k"
+    $B 90 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 200000 --steps 2000 --cpu-steps 40
+    stamp "engine benchmark, 2 M"
+    $B 150 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 2000000 --steps 500 --cpu-steps 10
+fi
+stamp "fast funnel on the GPU, seeds 1-$SEEDS, one at a time"
+for s in $(seq 1 "$SEEDS"); do
+    timeout -s KILL 30 "$REPOSE" aor --backend gpu --preset fast --set seed=$s --out "$WORK/gpu-fast-$s" --quiet >/dev/null 2>&1
+done
+summary "$WORK"/gpu-fast-*/result.json
+if [ "$CPU_SEEDS" = 1 ]; then
+    stamp "fast funnel on the CPU engine, seeds 1-$SEEDS, all at once, one thread each"
+    for s in $(seq 1 "$SEEDS"); do
+        timeout -s KILL 120 "$REPOSE" aor --preset fast --set seed=$s --threads 1 --out "$WORK/cpu-fast-$s" --quiet >/dev/null 2>&1 &
+    done
+    wait
+    summary "$WORK"/cpu-fast-*/result.json
+fi
+stamp "paper-scale funnel on the GPU, alone"
+timeout -s KILL 150 "$REPOSE" aor --backend gpu --preset paper-scale --out "$WORK/gpu-paper-scale" --quiet >/dev/null 2>&1
+summary "$WORK/gpu-paper-scale/result.json"
+left=$(( BUDGET_S - $(elapsed) ))
+stamp "fine funnel on the GPU, alone, $left s left"
+if [ "$left" -gt 30 ]; then
+    timeout -s KILL "$left" "$REPOSE" aor --backend gpu --preset fine --out "$WORK/gpu-fine" --quiet >/dev/null 2>&1
+    summary "$WORK/gpu-fine/result.json"
+fi
+stamp "done"
