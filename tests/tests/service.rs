@@ -981,33 +981,23 @@ fn a_two_target_campaign_on_the_dem_engine_runs_through_two_workers_to_a_verifie
     // The factor `soil_soil.cohesion.energy_density` is written into both specs, so both name
     // the linear law (at zero, overwritten by every run's value).
     let linear = json!({"model": "linear", "energy_density": 0.0});
-    let campaign = json!({
-        "name": "CI two-target calibration",
-        "experiments": {
-            "aor": {"kind": "aor", "preset": "fast", "spec": {
-                "total_mass": 0.025,
-                "soil_soil": {"cohesion": linear}
-            }},
-            "shear": {"kind": "shear", "preset": "fast", "spec": {
-                "normal_stresses_kpa": [4.0, 8.0],
-                "shear": {"displacement": 0.003},
-                "soil_soil": {"cohesion": linear}
-            }}
-        },
-        "targets": [
-            {"response": "aor.angle_deg", "target": 24.0, "tolerance": {"relative_pct": 20}},
-            {"response": "shear.box_cohesion_kpa", "target": 0.5, "tolerance": {"absolute": 0.25}}
+    let aor = json!({"kind": "aor", "preset": "fast", "spec": {
+        "total_mass": 0.025,
+        "soil_soil": {"cohesion": linear}
+    }});
+    let shear = json!({"kind": "shear", "preset": "fast", "spec": {
+        "normal_stresses_kpa": [4.0, 8.0],
+        "shear": {"displacement": 0.003},
+        "soil_soil": {"cohesion": linear}
+    }});
+    let campaign = two_target_campaign(
+        aor,
+        shear,
+        [
+            "soil_soil.static_friction",
+            "soil_soil.cohesion.energy_density",
         ],
-        "factors": [
-            {"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.3, "high": 0.6},
-            {"name": "ced", "path": "soil_soil.cohesion.energy_density", "low": 0.0, "high": 2.0e4}
-        ],
-        "seed": 11,
-        "screening": {"design": {"type": "factorial"}},
-        "steepest": {"points_per_dispatch": 2, "max_points": 4, "start": "centre"},
-        "response_surface": {"design": {"type": "box_behnken", "centre_points": 1}},
-        "verification": {"replicates": 3}
-    });
+    );
     two_target_campaign_through_two_workers(&campaign);
 }
 
@@ -1025,27 +1015,35 @@ fn a_two_target_campaign_runs_through_two_worker_processes_to_a_verified_optimum
             "noise_sd": {response: noise}
         }})
     };
-    let campaign = json!({
-        "name": "two-target calibration on closed forms",
-        "experiments": {
-            "aor": formula("angle_deg", "12 + 25*mu_s + 1.5e-4*ced", 0.5),
-            "shear": formula("box_cohesion_kpa", "0.1 + 3e-5*ced + 0.3*mu_s", 0.03)
-        },
+    let campaign = two_target_campaign(
+        formula("angle_deg", "12 + 25*mu_s + 1.5e-4*ced", 0.5),
+        formula("box_cohesion_kpa", "0.1 + 3e-5*ced + 0.3*mu_s", 0.03),
+        ["inputs.mu_s", "inputs.ced"],
+    );
+    two_target_campaign_through_two_workers(&campaign);
+}
+
+/// The two-target chain campaign of the two tests above: experiments `aor` and `shear`, the
+/// angle 24° ± 20 % and the box cohesion 0.5 ± 0.25 kPa, over soil-soil static friction
+/// (0.3-0.6) and a cohesion energy density (0-2e4 J/m³) written at `paths`.
+fn two_target_campaign(aor: Value, shear: Value, paths: [&str; 2]) -> Value {
+    json!({
+        "name": "two-target calibration",
+        "experiments": {"aor": aor, "shear": shear},
         "targets": [
             {"response": "aor.angle_deg", "target": 24.0, "tolerance": {"relative_pct": 20}},
             {"response": "shear.box_cohesion_kpa", "target": 0.5, "tolerance": {"absolute": 0.25}}
         ],
         "factors": [
-            {"name": "mu_s", "path": "inputs.mu_s", "low": 0.3, "high": 0.6},
-            {"name": "ced", "path": "inputs.ced", "low": 0.0, "high": 2.0e4}
+            {"name": "mu_s", "path": paths[0], "low": 0.3, "high": 0.6},
+            {"name": "ced", "path": paths[1], "low": 0.0, "high": 2.0e4}
         ],
         "seed": 11,
         "screening": {"design": {"type": "factorial"}},
         "steepest": {"points_per_dispatch": 2, "max_points": 4, "start": "centre"},
         "response_surface": {"design": {"type": "box_behnken", "centre_points": 1}},
         "verification": {"replicates": 3}
-    });
-    two_target_campaign_through_two_workers(&campaign);
+    })
 }
 
 /// Runs `campaign` (targets `aor.angle_deg` and `shear.box_cohesion_kpa`) on a fresh service
