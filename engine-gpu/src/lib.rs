@@ -5,9 +5,9 @@
 //! (particles, materials and their pair table, static triangle meshes, gravity, domain,
 //! integrator) and steps it with the same contact laws — Hertz-Mindlin no-slip with tangential
 //! history, damping and the Coulomb cap; constant-directional-torque rolling friction as a
-//! brake on the new spin — in f32. Grains can be inserted between runs of steps into a fixed
+//! brake on the new spin; linear (SJKR) cohesion — in f32. Grains can be inserted between runs of steps into a fixed
 //! number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this backend does
-//! not simulate yet (cohesion, EPSD rolling, particle factories as sources of the world, moving
+//! not simulate yet (JKR cohesion, EPSD rolling, particle factories as sources of the world, moving
 //! geometries) is refused by name, never approximated.
 //!
 //! **Positions** are integer voxels plus f32 offsets inside the voxel, so the vector between

@@ -3,7 +3,7 @@
 //! Pure data (no device), so the conversion and its precision are tested without a GPU.
 
 use bytemuck::{Pod, Zeroable};
-use repose_engine::contact::RollingModel;
+use repose_engine::contact::{CohesionLaw, RollingModel};
 use repose_engine::integrate::Integrator;
 use repose_engine::material::MaterialId;
 use repose_engine::math::Vec3;
@@ -303,19 +303,28 @@ pub(crate) struct Scene {
     pub radius: Vec<f64>,
 }
 
+/// The linear (SJKR) cohesion's energy density k, J/m³, for the shader (0: none). JKR is
+/// refused before this is asked.
+fn linear_cohesion(law: CohesionLaw) -> f32 {
+    match law {
+        CohesionLaw::Linear { energy_density } => energy_density as f32,
+        CohesionLaw::None | CohesionLaw::Jkr { .. } => 0.0,
+    }
+}
+
 fn v4(v: Vec3, w: f32) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w]
 }
 
 impl Scene {
     /// The GPU form of `world` now, with room for `capacity` (slots past the world's
-    /// particles are empty). Refuses what this backend does not simulate yet (cohesion, EPSD
-    /// rolling, particle sources, moving geometries), naming it.
+    /// particles are empty). Refuses what this backend does not simulate yet (JKR cohesion,
+    /// EPSD rolling, particle sources, moving geometries), naming it.
     pub fn from_world(world: &World, capacity: Capacity) -> Result<Scene, GpuError> {
         let config = world.config();
         let materials = world.materials();
-        if materials.any_cohesion() {
-            return Err(GpuError::Unsupported("cohesion".into()));
+        if materials.any_jkr() {
+            return Err(GpuError::Unsupported("JKR cohesion".into()));
         }
         if config.rolling_model != RollingModel::ConstantDirectionalTorque {
             return Err(GpuError::Unsupported(
@@ -379,7 +388,7 @@ impl Scene {
                     b: [
                         c.static_friction as f32,
                         c.rolling_friction as f32,
-                        0.0,
+                        linear_cohesion(c.cohesion),
                         0.0,
                     ],
                 });

@@ -524,13 +524,16 @@ mod tests {
         );
     }
 
-    /// Only `aor`'s funnel without EPSD rolling or cohesion runs on the GPU; every other kind
+    /// Only `aor`'s funnel without EPSD rolling or JKR cohesion runs on the GPU; every other kind
     /// and spec is refused by name and permanently (no worker's GPU runs it), and a GPU run
     /// keeps no checkpoint while the CPU's key stays what it was.
     #[test]
     fn the_gpu_runs_the_aor_funnel_and_refuses_the_rest_by_name() {
         let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
         aor.check_backend(BackendKind::Gpu).unwrap();
+        let linear = json!({"soil_soil": {"cohesion": {"model": "linear", "energy_density": 1e4}}});
+        let cohesive = Kind::Aor.prepare(Some("fast"), &linear).unwrap();
+        cohesive.check_backend(BackendKind::Gpu).unwrap();
         for kind in Kind::ALL {
             let spec = match kind {
                 Kind::TableLookup => json!({"values": {"a": 1.0}, "rows": [{"a": 1.0}]}),

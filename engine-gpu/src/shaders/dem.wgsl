@@ -17,6 +17,7 @@ const WCAP: u32 = 4u;      // triangle contacts (with history) per particle
 const WCAND: u32 = 8u;     // triangle contact candidates before merging
 const WG: u32 = 128u;
 const DAMPING_FACTOR: f32 = 1.8257418583505538;
+const PI: f32 = 3.141592653589793;
 
 struct Params {
     n: u32,
@@ -38,7 +39,7 @@ struct Params {
 struct PairC {
     // E*, G*, beta, sqrt(4 G*/E*)
     a: vec4<f32>,
-    // mu_s, mu_r, 0, 0
+    // mu_s, mu_r, linear cohesion energy density k (J/m^3, 0: none), 0
     b: vec4<f32>,
 }
 
@@ -226,8 +227,16 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>) -> PairOut {
     let m_star = va.w * vb.w / (va.w + vb.w);
     let c = pair_constants(cell[a].w, cell[b].w);
     let h = hertz_mindlin(c, r_star, m_star, overlap, n, vrel, spring_in);
-    let n_cross_f = cross(n, h.force);
-    o.force = h.force;
+    var force = h.force;
+    if (c.b.z > 0.0) {
+        // Linear cohesion, k times the area of the circle where the undeformed spheres cut;
+        // friction and rolling keep the Hertz load (the CPU engine's `CohesionLaw`).
+        let a2 = overlap * (2.0 * ra - overlap) * (2.0 * rb - overlap)
+            * (2.0 * rsum - overlap) / (4.0 * dist2);
+        force -= n * (c.b.z * PI * a2);
+    }
+    let n_cross_f = cross(n, force);
+    o.force = force;
     o.torque_a = -n_cross_f * lever_a;
     o.torque_b = -n_cross_f * lever_b;
     let m = c.b.y * h.normal_force;
@@ -575,8 +584,13 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         let vrel = vi.xyz + cross(wi, arm);
         let c = pair_constants(cell[i].w, tc.material);
         let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, spring);
-        f += h.force;
-        tq += cross(arm, h.force);
+        var force = h.force;
+        if (c.b.z > 0.0) {
+            // Linear cohesion over the circle where the sphere cuts the wall's plane.
+            force -= tc.normal * (c.b.z * PI * tc.overlap * (2.0 * ri - tc.overlap));
+        }
+        f += force;
+        tq += cross(arm, force);
         moment += c.b.y * h.normal_force * length(arm);
         walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, 1.0);
         walls[slot(i, 2u * a + 1u)] = vec4<f32>(h.spring, 0.0);

@@ -41,11 +41,15 @@ fn wall_material() -> Material {
 }
 
 fn table(restitution: f64, friction: f64, rolling: f64) -> MaterialTable {
+    table_with(restitution, friction, rolling, Cohesion::None)
+}
+
+fn table_with(restitution: f64, friction: f64, rolling: f64, cohesion: Cohesion) -> MaterialTable {
     let coefficients = Interaction {
         restitution,
         static_friction: friction,
         rolling_friction: rolling,
-        cohesion: Cohesion::None,
+        cohesion,
     };
     let entry = |a: &str, b: &str| InteractionEntry {
         a: a.into(),
@@ -155,6 +159,93 @@ fn hertz_force_against_overlap_anywhere_in_a_03_m_domain() {
         );
         assert!(f.y.abs() < 1e-6 * expected && f.z.abs() < 1e-6 * expected);
     }
+}
+
+/// Linear (SJKR) cohesion, the CPU engine's law: the first-step force of two touching spheres,
+/// and of a sphere on a triangle's face, drops by k π a² along the normal (a² the squared radius
+/// of the circle where the undeformed bodies cut); a JKR pair is refused by name.
+#[test]
+fn linear_cohesion_pulls_with_k_times_the_area_where_the_bodies_cut() {
+    let Some(gpu) = common::gpu() else { return };
+    let (r, k) = (1.0e-3, 2.0e5);
+    let domain = Domain::closed(Vec3::repeat(-0.05), Vec3::repeat(0.05));
+    let pi = std::f64::consts::PI;
+    for fraction in [1e-3, 1e-2, 1e-1] {
+        let overlap = fraction * r;
+        let dist = 2.0 * r - overlap;
+        // Two spheres along x: the pull on the first is towards the second, +x.
+        let pair = |cohesion| {
+            let mut w = world(
+                table_with(0.5, 0.5, 0.0, cohesion),
+                1e-8,
+                Vec3::zeros(),
+                domain,
+            );
+            w.add_particle(ball(Vec3::zeros(), Vec3::zeros(), Vec3::zeros(), r))
+                .unwrap();
+            w.add_particle(ball(
+                Vec3::new(dist, 0.0, 0.0),
+                Vec3::zeros(),
+                Vec3::zeros(),
+                r,
+            ))
+            .unwrap();
+            first_step_force(&gpu, &w, 0)
+        };
+        let pull = pair(Cohesion::Linear { energy_density: k }) - pair(Cohesion::None);
+        let a2 = overlap * (2.0 * r - overlap).powi(2) * (4.0 * r - overlap) / (4.0 * dist * dist);
+        let expected = k * pi * a2;
+        println!(
+            "spheres, overlap {fraction:e} r: pull {:.6e} N, k π a² {expected:.6e} N",
+            pull.x
+        );
+        assert!(
+            (pull.x / expected - 1.0).abs() < 1e-3,
+            "{pull:?} vs {expected}"
+        );
+        assert!(pull.y.abs() < 1e-6 * expected && pull.z.abs() < 1e-6 * expected);
+        // A sphere on a triangle's face (z = 0), from above: the pull is down, -z.
+        let face = |cohesion| {
+            let mut w = world(
+                table_with(0.5, 0.5, 0.0, cohesion),
+                1e-8,
+                Vec3::zeros(),
+                domain,
+            );
+            add_mesh(&mut w, plane(0.02, 1));
+            let centre = Vec3::new(0.001, 0.002, r - overlap);
+            w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
+                .unwrap();
+            first_step_force(&gpu, &w, 0)
+        };
+        let pull = face(Cohesion::None) - face(Cohesion::Linear { energy_density: k });
+        let expected = k * pi * overlap * (2.0 * r - overlap);
+        println!(
+            "face, overlap {fraction:e} r: pull {:.6e} N, k π a² {expected:.6e} N",
+            pull.z
+        );
+        assert!(
+            (pull.z / expected - 1.0).abs() < 1e-3,
+            "{pull:?} vs {expected}"
+        );
+    }
+    let mut jkr = world(
+        table_with(
+            0.5,
+            0.5,
+            0.0,
+            Cohesion::Jkr {
+                surface_energy: 0.1,
+            },
+        ),
+        1e-8,
+        Vec3::zeros(),
+        domain,
+    );
+    jkr.add_particle(ball(Vec3::zeros(), Vec3::zeros(), Vec3::zeros(), r))
+        .unwrap();
+    let err = GpuWorld::new(&gpu, &jkr).unwrap_err();
+    assert!(err.to_string().contains("JKR cohesion"), "{err}");
 }
 
 #[test]

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use repose_engine::distribution::SizeDistribution;
 use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
 use repose_engine::kinematics::{Motion, TranslationSegment};
-use repose_engine::material::rayleigh_time;
+use repose_engine::material::{rayleigh_time, Cohesion};
 use repose_engine::math::{Pose, Vec3};
 use repose_engine::mesh::generators::{cylinder, funnel, plane};
 use repose_engine::mesh::{FunnelSpec, FunnelTop, TriMesh};
@@ -584,7 +584,7 @@ pub fn run_aor_with_checkpoints(
 
 /// Ok if the `kind` backend runs `spec`'s protocol; else the error [`run_aor_on`] would give:
 /// the GPU backend does not lift the cylinder's tube (a moving geometry), nor simulate EPSD
-/// rolling or cohesion. Every refusal names the spec's field. A caller may ask before it opens
+/// rolling or JKR cohesion (linear cohesion it does). Every refusal names the spec's field. A caller may ask before it opens
 /// a GPU (a job server asks at submission).
 pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> {
     spec.validate()?;
@@ -596,13 +596,13 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
         ("soil_steel", &spec.soil_steel),
     ]
     .into_iter()
-    .find(|(_, pair)| !pair.cohesion.is_none());
+    .find(|(_, pair)| matches!(pair.cohesion, Cohesion::Jkr { .. }));
     let what = if spec.protocol == Protocol::LiftedCylinder {
         "the lifted-cylinder protocol (`protocol`: its tube is lifted, a moving geometry)".into()
     } else if spec.rolling_model == RollingSpec::Epsd {
         "the elastic-plastic spring-dashpot (EPSD) rolling model (`rolling_model`)".into()
     } else if let Some((pair, _)) = cohesive {
-        format!("cohesion (`{pair}.cohesion`)")
+        format!("JKR cohesion (`{pair}.cohesion`)")
     } else {
         return Ok(());
     };
@@ -618,7 +618,7 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
 ///
 /// The GPU backend runs the funnel protocol (the factory is served from the host, see
 /// [`crate::backend::GpuBackend`]) and refuses by name what it does not simulate: the lifted
-/// cylinder (its tube moves), EPSD rolling, cohesion, and checkpoints (a GPU run is not
+/// cylinder (its tube moves), EPSD rolling, JKR cohesion, and checkpoints (a GPU run is not
 /// continued from a saved state: `checkpoints` must be the default).
 pub fn run_aor_on(
     engine: Engine<'_>,

@@ -180,7 +180,7 @@ fn minimum_image(domain: &Domain, mut d: Vec3) -> Vec3 {
 
 impl GpuBackend {
     /// Uploads `world` to `gpu` and serves its sources for the first step. Errors: what the
-    /// GPU backend does not simulate (cohesion, EPSD rolling, moving geometries), named; a
+    /// GPU backend does not simulate (JKR cohesion, EPSD rolling, moving geometries), named; a
     /// scene that does not fit the adapter.
     pub fn new(gpu: &Gpu, mut world: World) -> Result<GpuBackend, BackendError> {
         let sources = world.take_sources();

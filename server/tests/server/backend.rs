@@ -71,7 +71,7 @@ async fn a_backend_the_experiment_cannot_run_on_is_a_422_naming_experiment_backe
         (json!({"rolling_model": "epsd"}), "rolling_model"),
         (json!({"protocol": "lifted_cylinder"}), "protocol"),
         (
-            json!({"soil_soil": {"cohesion": {"model": "linear", "energy_density": 1e4}}}),
+            json!({"soil_soil": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
             "soil_soil.cohesion",
         ),
     ] {
