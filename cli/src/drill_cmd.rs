@@ -7,12 +7,11 @@
 //! against time) into `--out`. With `--bed-cache DIR` the settled bed is stored in DIR under its
 //! key (`<key>.json`) and reused by later runs with the same bed parameters.
 
-use crate::sim::write_file;
+use crate::local_run::{run_on_bed_and_write, RunFiles};
 use anyhow::{Context, Result};
 use clap::Args;
-use repose_experiments::drill::{DrillSpec, StlDrill};
+use repose_experiments::drill::{DrillResult, DrillRun, DrillSpec, StlDrill};
 use repose_experiments::Spec;
-use std::io::Write;
 use std::path::PathBuf;
 
 #[derive(Debug, Args)]
@@ -72,28 +71,30 @@ pub fn run(args: &DrillArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    let started = std::time::Instant::now();
-    let run = crate::local_run::run_on_bed(
+    run_on_bed_and_write(
         &spec,
         out,
         args.bed_cache.as_deref(),
         args.threads,
         args.quiet,
-    )?;
-    let mut result = run.result.clone();
-    // This command's wall time, the bed included when it was built here.
-    result.wall_time_s = started.elapsed().as_secs_f64();
+    )
+}
 
-    let json = serde_json::to_string_pretty(&result)?;
-    write_file(&out.join("result.json"), |w| writeln!(w, "{json}"))?;
-    let section = run.section_svg();
-    write_file(&out.join("section.svg"), |w| {
-        w.write_all(section.as_bytes())
-    })?;
-    let forces = run.forces_svg();
-    write_file(&out.join("forces.svg"), |w| w.write_all(forces.as_bytes()))?;
-    let csv = run.forces_csv();
-    write_file(&out.join("forces.csv"), |w| w.write_all(csv.as_bytes()))?;
-    println!("{json}");
-    Ok(())
+impl RunFiles for DrillRun {
+    type Result = DrillResult;
+
+    fn result_with_wall_time(&self, wall_time_s: f64) -> DrillResult {
+        DrillResult {
+            wall_time_s,
+            ..self.result.clone()
+        }
+    }
+
+    fn files(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("section.svg", self.section_svg()),
+            ("forces.svg", self.forces_svg()),
+            ("forces.csv", self.forces_csv()),
+        ]
+    }
 }

@@ -2,6 +2,7 @@
 //! way: its spec from `--preset`/`--spec`/`--set`, its output folders, a thread pool of
 //! `--threads` threads and a progress bar.
 
+use std::io::Write;
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
@@ -92,6 +93,41 @@ where
     })?;
     bar.finish_and_clear();
     Ok(run)
+}
+
+/// What `repose drill` and `repose shear` keep of a finished run: its result and its files.
+pub trait RunFiles {
+    type Result: serde::Serialize;
+    /// The run's result, its wall time replaced by `wall_time_s`.
+    fn result_with_wall_time(&self, wall_time_s: f64) -> Self::Result;
+    /// The pictures and tables beside `result.json`: file name and contents, in order.
+    fn files(&self) -> Vec<(&'static str, String)>;
+}
+
+/// [`run_on_bed`], then `result.json` (its wall time this command's, the bed's included when
+/// it was built here) and the run's [`RunFiles::files`] written into `out`; prints the JSON.
+pub fn run_on_bed_and_write<S>(
+    spec: &S,
+    out: &Path,
+    bed_cache: Option<&Path>,
+    threads: Option<usize>,
+    quiet: bool,
+) -> Result<()>
+where
+    S: OnBed + Sync,
+    S::Run: Send + RunFiles,
+    S::Error: std::error::Error + Send + Sync + 'static,
+{
+    let started = std::time::Instant::now();
+    let run = run_on_bed(spec, out, bed_cache, threads, quiet)?;
+    let result = run.result_with_wall_time(started.elapsed().as_secs_f64());
+    let json = serde_json::to_string_pretty(&result)?;
+    crate::sim::write_file(&out.join("result.json"), |w| writeln!(w, "{json}"))?;
+    for (name, contents) in run.files() {
+        crate::sim::write_file(&out.join(name), |w| w.write_all(contents.as_bytes()))?;
+    }
+    println!("{json}");
+    Ok(())
 }
 
 /// The settled beds of `--bed-cache DIR` (none without the flag): a bed found there is reused,

@@ -9,12 +9,11 @@
 //! DIR under its key (`<key>.json`, the drilling bed store) and reused by later runs with the
 //! same sample parameters.
 
-use crate::sim::write_file;
+use crate::local_run::{run_on_bed_and_write, RunFiles};
 use anyhow::Result;
 use clap::Args;
-use repose_experiments::shear::ShearSpec;
+use repose_experiments::shear::{ShearResult, ShearRun, ShearSpec};
 use repose_experiments::Spec;
-use std::io::Write;
 use std::path::PathBuf;
 
 #[derive(Debug, Args)]
@@ -63,32 +62,30 @@ pub fn run(args: &ShearArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    let started = std::time::Instant::now();
-    let run = crate::local_run::run_on_bed(
+    run_on_bed_and_write(
         &spec,
         out,
         args.bed_cache.as_deref(),
         args.threads,
         args.quiet,
-    )?;
-    let mut result = run.result.clone();
-    // This command's wall time, the sample included when it was built here.
-    result.wall_time_s = started.elapsed().as_secs_f64();
+    )
+}
 
-    let json = serde_json::to_string_pretty(&result)?;
-    write_file(&out.join("result.json"), |w| writeln!(w, "{json}"))?;
-    let curves = run.curves_svg();
-    write_file(&out.join("shear_curves.svg"), |w| {
-        w.write_all(curves.as_bytes())
-    })?;
-    let strength = run.strength_svg();
-    write_file(&out.join("mohr_coulomb.svg"), |w| {
-        w.write_all(strength.as_bytes())
-    })?;
-    let csv = run.curves_csv();
-    write_file(&out.join("shear_curves.csv"), |w| {
-        w.write_all(csv.as_bytes())
-    })?;
-    println!("{json}");
-    Ok(())
+impl RunFiles for ShearRun {
+    type Result = ShearResult;
+
+    fn result_with_wall_time(&self, wall_time_s: f64) -> ShearResult {
+        ShearResult {
+            wall_time_s,
+            ..self.result.clone()
+        }
+    }
+
+    fn files(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("shear_curves.svg", self.curves_svg()),
+            ("mohr_coulomb.svg", self.strength_svg()),
+            ("shear_curves.csv", self.curves_csv()),
+        ]
+    }
 }
