@@ -170,64 +170,49 @@ fn linear_cohesion_pulls_with_k_times_the_area_where_the_bodies_cut() {
     let (r, k) = (1.0e-3, 2.0e5);
     let domain = Domain::closed(Vec3::repeat(-0.05), Vec3::repeat(0.05));
     let pi = std::f64::consts::PI;
+    // The pull: the first-step force without cohesion minus the one with it.
+    let pull = |add: &dyn Fn(&mut World)| {
+        let force = |cohesion| {
+            let mut w = world(
+                table_with(0.5, 0.5, 0.0, cohesion),
+                1e-8,
+                Vec3::zeros(),
+                domain,
+            );
+            add(&mut w);
+            first_step_force(&gpu, &w, 0)
+        };
+        force(Cohesion::None) - force(Cohesion::Linear { energy_density: k })
+    };
+    let at_rest = |w: &mut World, centre: Vec3| {
+        w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
+            .unwrap();
+    };
     for fraction in [1e-3, 1e-2, 1e-1] {
         let overlap = fraction * r;
         let dist = 2.0 * r - overlap;
-        // Two spheres along x: the pull on the first is towards the second, +x.
-        let pair = |cohesion| {
-            let mut w = world(
-                table_with(0.5, 0.5, 0.0, cohesion),
-                1e-8,
-                Vec3::zeros(),
-                domain,
-            );
-            w.add_particle(ball(Vec3::zeros(), Vec3::zeros(), Vec3::zeros(), r))
-                .unwrap();
-            w.add_particle(ball(
-                Vec3::new(dist, 0.0, 0.0),
-                Vec3::zeros(),
-                Vec3::zeros(),
-                r,
-            ))
-            .unwrap();
-            first_step_force(&gpu, &w, 0)
-        };
-        let pull = pair(Cohesion::Linear { energy_density: k }) - pair(Cohesion::None);
+        // Two spheres along x: the first is pulled towards the second, +x.
+        let spheres = -pull(&|w| {
+            at_rest(w, Vec3::zeros());
+            at_rest(w, Vec3::new(dist, 0.0, 0.0));
+        });
         let a2 = overlap * (2.0 * r - overlap).powi(2) * (4.0 * r - overlap) / (4.0 * dist * dist);
-        let expected = k * pi * a2;
-        println!(
-            "spheres, overlap {fraction:e} r: pull {:.6e} N, k π a² {expected:.6e} N",
-            pull.x
-        );
-        assert!(
-            (pull.x / expected - 1.0).abs() < 1e-3,
-            "{pull:?} vs {expected}"
-        );
-        assert!(pull.y.abs() < 1e-6 * expected && pull.z.abs() < 1e-6 * expected);
-        // A sphere on a triangle's face (z = 0), from above: the pull is down, -z.
-        let face = |cohesion| {
-            let mut w = world(
-                table_with(0.5, 0.5, 0.0, cohesion),
-                1e-8,
-                Vec3::zeros(),
-                domain,
+        // A sphere on a triangle's face (z = 0), from above: pulled down, -z.
+        let face = pull(&|w| {
+            add_mesh(w, plane(0.02, 1));
+            at_rest(w, Vec3::new(0.001, 0.002, r - overlap));
+        });
+        for (name, along, expected) in [
+            ("spheres", spheres.x, k * pi * a2),
+            ("face", face.z, k * pi * overlap * (2.0 * r - overlap)),
+        ] {
+            println!("{name}, overlap {fraction:e} r: pull {along:.6e} N, k π a² {expected:.6e} N");
+            assert!(
+                (along / expected - 1.0).abs() < 1e-3,
+                "{name}: {along} vs {expected}"
             );
-            add_mesh(&mut w, plane(0.02, 1));
-            let centre = Vec3::new(0.001, 0.002, r - overlap);
-            w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
-                .unwrap();
-            first_step_force(&gpu, &w, 0)
-        };
-        let pull = face(Cohesion::None) - face(Cohesion::Linear { energy_density: k });
-        let expected = k * pi * overlap * (2.0 * r - overlap);
-        println!(
-            "face, overlap {fraction:e} r: pull {:.6e} N, k π a² {expected:.6e} N",
-            pull.z
-        );
-        assert!(
-            (pull.z / expected - 1.0).abs() < 1e-3,
-            "{pull:?} vs {expected}"
-        );
+        }
+        assert!(spheres.y.abs() < 1e-6 * spheres.x && spheres.z.abs() < 1e-6 * spheres.x);
     }
     let mut jkr = world(
         table_with(
