@@ -22,7 +22,8 @@ use super::spec::{DrillSpec, SpecError};
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
-    BedError, BedInfo, HeightField, NoBedStore, OnBed, SettledBed, SettledBy, SplitMix,
+    BedError, BedInfo, BedMismatch, HeightField, NoBedStore, OnBed, SettledBed, SettledBy,
+    SplitMix,
 };
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
@@ -35,8 +36,8 @@ pub enum DrillError {
     #[error("{part}: {reason}")]
     Build { part: &'static str, reason: String },
     /// The bed handed to [`run_drill_on_bed`] was built for other parameters.
-    #[error("the bed was built for other parameters (bed key {found}, the spec needs {expected})")]
-    BedMismatch { expected: String, found: String },
+    #[error(transparent)]
+    BedMismatch(#[from] BedMismatch),
     /// The progress callback cancelled while the bed was being built.
     #[error("cancelled")]
     Cancelled,
@@ -280,14 +281,7 @@ pub fn run_drill_on_bed(
     bed: SettledBed,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
-    let expected = bed_key(spec);
-    if bed.key != expected {
-        return Err(DrillError::BedMismatch {
-            expected,
-            found: bed.key,
-        });
-    }
-    drill(spec, bed, progress)
+    spec.run_on_bed(bed, progress)
 }
 
 /// The drilling test runs on a settled bed, built in the first quarter of the progress.
@@ -314,12 +308,12 @@ impl OnBed for DrillSpec {
         })
     }
 
-    fn run_on_bed(
+    fn run_on_matching_bed(
         &self,
         bed: SettledBed,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<DrillRun, DrillError> {
-        run_drill_on_bed(self, bed, progress)
+        drill(self, bed, progress)
     }
 
     fn bed_of(run: &mut DrillRun) -> (&mut BedInfo, &mut f64) {

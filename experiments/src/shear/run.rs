@@ -39,8 +39,8 @@ use super::spec::{ShearSpec, SpecError};
 use super::window::{PlaneStress, Window};
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
-    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, NoBedStore, OnBed, SettledBed,
-    Setup,
+    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, OnBed,
+    SettledBed, Setup,
 };
 
 /// Why a run could not start or was stopped before it could report (a finished run whose
@@ -53,10 +53,8 @@ pub enum ShearError {
     #[error("{part}: {reason}")]
     Build { part: &'static str, reason: String },
     /// The sample handed to [`run_shear_on_bed`] was built for other parameters.
-    #[error(
-        "the sample was built for other parameters (bed key {found}, the spec needs {expected})"
-    )]
-    BedMismatch { expected: String, found: String },
+    #[error(transparent)]
+    BedMismatch(#[from] BedMismatch),
     /// The progress callback cancelled.
     #[error("cancelled")]
     Cancelled,
@@ -373,14 +371,7 @@ pub fn run_shear_on_bed(
     bed: SettledBed,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
-    let expected = sample_key(spec);
-    if bed.key != expected {
-        return Err(ShearError::BedMismatch {
-            expected,
-            found: bed.key,
-        });
-    }
-    shear(spec, bed, progress)
+    spec.run_on_bed(bed, progress)
 }
 
 /// The shear test runs on a settled sample, built in the first fifth of the progress.
@@ -400,12 +391,12 @@ impl OnBed for ShearSpec {
         build_sample(self, progress)
     }
 
-    fn run_on_bed(
+    fn run_on_matching_bed(
         &self,
         bed: SettledBed,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<ShearRun, ShearError> {
-        run_shear_on_bed(self, bed, progress)
+        shear(self, bed, progress)
     }
 
     fn bed_of(run: &mut ShearRun) -> (&mut BedInfo, &mut f64) {

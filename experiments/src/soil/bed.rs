@@ -134,11 +134,20 @@ impl BedStore for NoBedStore {
 
 /// An experiment that runs on a settled bed: how it names, builds and runs on its bed.
 /// [`run_on_bed`] does the rest.
+/// A bed handed to a run was built for other parameters: its key and the one the spec needs.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("the bed was built for other parameters (bed key {found}, the spec needs {expected})")]
+pub struct BedMismatch {
+    pub expected: String,
+    pub found: String,
+}
+
 pub trait OnBed {
     /// A finished run.
     type Run;
-    /// Why a bed could not be built or a run could not report.
-    type Error;
+    /// Why a bed could not be built or a run could not report (a bed built for another key
+    /// among the reasons).
+    type Error: From<BedMismatch>;
     /// The share of the progress fraction that building the bed takes.
     const BED_SHARE: f64;
 
@@ -151,8 +160,26 @@ pub trait OnBed {
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<SettledBed, Self::Error>;
 
-    /// Runs on `bed`, built for [`OnBed::bed_key`] (here or earlier).
+    /// Runs on `bed`, built here or earlier (e.g. read back from a cache); a bed built for
+    /// another key than [`OnBed::bed_key`] is refused ([`BedMismatch`]).
     fn run_on_bed(
+        &self,
+        bed: SettledBed,
+        progress: &mut dyn FnMut(Progress<'_>) -> Control,
+    ) -> Result<Self::Run, Self::Error> {
+        let expected = self.bed_key();
+        if bed.key != expected {
+            return Err(BedMismatch {
+                expected,
+                found: bed.key,
+            }
+            .into());
+        }
+        self.run_on_matching_bed(bed, progress)
+    }
+
+    /// Runs on `bed`, known to be built for [`OnBed::bed_key`].
+    fn run_on_matching_bed(
         &self,
         bed: SettledBed,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,

@@ -10,7 +10,9 @@ mod recipe;
 mod spec;
 mod surface;
 
-pub use bed::{run_on_bed, BedStore, NoBedStore, OnBed, SettledBed, SettledBy, BED_FORMAT};
+pub use bed::{
+    run_on_bed, BedMismatch, BedStore, NoBedStore, OnBed, SettledBed, SettledBy, BED_FORMAT,
+};
 pub(crate) use recipe::{bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix};
 pub use recipe::{BedError, BedInfo, BedProgress, BedRecipe, BedSpec, BinSpec, SurfaceReading};
 pub(crate) use spec::{

@@ -153,10 +153,7 @@ fn stages_reuse_one_sample_and_a_stored_sample_gives_the_same_stage() {
     let mut other = ShearSpec::fast();
     other.soil_soil.static_friction = 0.3;
     let err = run_shear_on_bed(&other, base.bed.clone(), &mut |_| Control::Continue);
-    assert!(
-        matches!(err, Err(ShearError::BedMismatch { .. })),
-        "{err:?}"
-    );
+    assert!(matches!(err, Err(ShearError::BedMismatch(_))), "{err:?}");
 }
 
 #[test]
