@@ -7,33 +7,14 @@
 //! run with another seed. So its angle is compared with the spread of the CPU's angles over
 //! seeds, not to the bit.
 
-use repose_engine_gpu::GpuError;
 use repose_experiments::aor::{
     check_backend, run_aor_on, AorError, AorResult, AorRun, AorSpec, Checkpoints, Control,
     RunStatus,
 };
-use repose_experiments::backend::{BackendError, BackendKind, Engine, Gpu};
+use repose_experiments::backend::{BackendError, BackendKind, Engine};
 use repose_experiments::Spec;
 
-/// The GPU, or `None` with a message where no adapter can be opened (the test then checks
-/// nothing and says so); `REPOSE_REQUIRE_GPU=1` (`.ci/run` sets it where lavapipe is
-/// installed) turns that into a failure.
-fn gpu() -> Option<Gpu> {
-    match Gpu::open() {
-        Ok(gpu) => {
-            eprintln!("GPU: {}", gpu.describe());
-            Some(gpu)
-        }
-        Err(e @ GpuError::NoAdapter(_)) => {
-            if std::env::var("REPOSE_REQUIRE_GPU").is_ok_and(|v| v == "1") {
-                panic!("REPOSE_REQUIRE_GPU=1 but {e}");
-            }
-            eprintln!("SKIPPED: {e}");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
-}
+use crate::gpu_common::gpu;
 
 /// A small funnel for CI: about 560 grains of 4 mm poured in 0.2 s through the `fast` funnel
 /// (a 40 mm outlet, 10 grains wide, 40 mm above a 15 cm plate), checked every 50 ms; at rest

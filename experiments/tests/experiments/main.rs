@@ -10,5 +10,10 @@ mod aor_spec;
 mod common;
 mod drill_run;
 mod drill_spec;
+/// The engine-gpu tests' GPU opener (`gpu()`: skips, or fails under `REPOSE_REQUIRE_GPU=1`,
+/// where no adapter can be opened), one file for both crates.
+#[allow(dead_code)]
+#[path = "../../../engine-gpu/tests/gpu/common/mod.rs"]
+mod gpu_common;
 mod shear_run;
 mod shear_spec;

@@ -36,6 +36,21 @@ pub fn stdout(out: &Output) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// Whether a GPU command's `text` (its stderr or log) says no GPU adapter could be opened at
+/// all: then the test says it skipped and should return, or, under `REPOSE_REQUIRE_GPU=1`
+/// (`.ci/run` sets it where lavapipe is installed), fails.
+pub fn skipped_without_gpu(text: &str) -> bool {
+    if !text.contains("no GPU adapter") {
+        return false;
+    }
+    assert!(
+        !std::env::var("REPOSE_REQUIRE_GPU").is_ok_and(|v| v == "1"),
+        "REPOSE_REQUIRE_GPU=1 but {text}"
+    );
+    eprintln!("SKIPPED: {text}");
+    true
+}
+
 pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
