@@ -113,6 +113,16 @@ fn drive(
     (campaign, outstanding, last)
 }
 
+/// The runs of every batch the campaign issued but its drilling validation's.
+fn simulations_but_drilling(campaign: &Campaign) -> usize {
+    campaign
+        .batches
+        .iter()
+        .filter(|b| b.stage != repose_campaign::StageKind::Drilling)
+        .map(|b| common::expand(&b.request).len())
+        .sum()
+}
+
 fn start(request: Value) -> (Campaign, Vec<(usize, BatchRequest)>) {
     let request: CampaignRequest = serde_json::from_value(request).expect("request parses");
     let (campaign, batches) = Campaign::begin(request).expect("begins");
@@ -595,13 +605,10 @@ fn the_drilling_validation_runs_at_the_verified_point_and_counts_no_simulation()
     let simulated = outcome.metrics[0].simulated.unwrap();
     assert!((simulated - (50.0 + 40.0 * verified[0])).abs() < 1e-9);
     // Not counted: the simulations are the search's and the verification's only.
-    let counted: usize = campaign
-        .batches
-        .iter()
-        .filter(|b| b.stage != repose_campaign::StageKind::Drilling)
-        .map(|b| common::expand(&b.request).len())
-        .sum();
-    assert_eq!(summary.simulations, Some(counted));
+    assert_eq!(
+        summary.simulations,
+        Some(simulations_but_drilling(&campaign))
+    );
 }
 
 #[test]
@@ -651,13 +658,10 @@ fn targets_in_conflict_still_drill_at_the_compromise_and_stop_for_attention() {
         .iter()
         .any(|d| d.text.contains("which no verification accepted")));
     // Not counted in the simulations.
-    let counted: usize = campaign
-        .batches
-        .iter()
-        .filter(|b| b.stage != repose_campaign::StageKind::Drilling)
-        .map(|b| common::expand(&b.request).len())
-        .sum();
-    assert_eq!(summary.simulations, Some(counted));
+    assert_eq!(
+        summary.simulations,
+        Some(simulations_but_drilling(&campaign))
+    );
 }
 
 #[test]
