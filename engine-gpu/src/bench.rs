@@ -27,11 +27,11 @@ pub fn settled_bed(gpu: &Gpu, particles: usize, seed: u64) -> Result<(World, u64
     let mut gpu_world = GpuWorld::new(gpu, &world)?;
     let mut failed = None;
     settle(fall, |advance| {
-        match advance {
+        let advanced = match advance {
             Advance::Until(time) => gpu_world.run_until(time),
             Advance::Steps(steps) => gpu_world.run(steps),
-        }
-        match gpu_world.fastest_speed() {
+        };
+        match advanced.and_then(|()| gpu_world.fastest_speed()) {
             Ok(fastest) => (gpu_world.time(), fastest),
             Err(e) => {
                 failed = Some(e);
@@ -60,11 +60,11 @@ pub fn settled_bed(gpu: &Gpu, particles: usize, seed: u64) -> Result<(World, u64
 /// `steps` steps to completion.
 pub fn time_steps(gpu: &Gpu, bed: &World, steps: u64) -> Result<GpuBenchResult, GpuError> {
     let mut world = GpuWorld::new(gpu, bed)?;
-    world.run(20);
+    world.run(20)?;
     world.finish()?;
     let before = world.counters()?;
     let start = Instant::now();
-    world.run(steps);
+    world.run(steps)?;
     world.finish()?;
     let seconds = start.elapsed().as_secs_f64();
     let after = world.counters()?;

@@ -2,13 +2,15 @@
 //! lavapipe runs it on a CPU for tests).
 //!
 //! The scene is the CPU engine's: a [`GpuWorld`] is built from a `repose_engine::World`
-//! (particles, materials and their pair table, static triangle meshes, gravity, domain,
-//! integrator) and steps it with the same contact laws — Hertz-Mindlin no-slip with tangential
-//! history, damping and the Coulomb cap; constant-directional-torque rolling friction as a
-//! brake on the new spin; linear (SJKR) cohesion — in f32. Grains can be inserted between runs of steps into a fixed
-//! number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this backend does
-//! not simulate yet (JKR cohesion, EPSD rolling, particle factories as sources of the world, moving
-//! geometries) is refused by name, never approximated.
+//! (particles, materials and their pair table, static and moving triangle meshes, gravity,
+//! domain, integrator) and steps it with the same contact laws — Hertz-Mindlin no-slip with
+//! tangential history, damping and the Coulomb cap; constant-directional-torque rolling
+//! friction as a brake on the new spin; linear (SJKR) cohesion — in f32. A moving mesh's
+//! motion is evaluated in f64 on the host before each force evaluation (`movers`). Grains can
+//! be inserted between runs of steps into a fixed number of slots
+//! ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this backend does not simulate yet
+//! (JKR cohesion, EPSD rolling, particle factories as sources of the world) is refused by name,
+//! never approximated.
 //!
 //! **Positions** are integer voxels plus f32 offsets inside the voxel, so the vector between
 //! two nearby particles (and a particle and a triangle's first corner) is exact to the
@@ -22,6 +24,7 @@
 
 mod device;
 mod error;
+mod movers;
 pub mod scene;
 mod world;
 

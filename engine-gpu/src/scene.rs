@@ -10,6 +10,7 @@ use repose_engine::math::Vec3;
 use repose_engine::particles::ParticleSpec;
 use repose_engine::world::World;
 
+use crate::movers::{bin_body_mesh, Mover, MAX_MOVERS};
 use crate::GpuError;
 
 /// Neighbours per particle within the skin (the shader's `CAP`).
@@ -160,6 +161,8 @@ pub(crate) struct Params {
     pub gravity: [f32; 4],
     pub misc: [f32; 4],
     pub misc2: [f32; 4],
+    /// Moving geometries (x); the rest unused.
+    pub movers: [u32; 4],
 }
 
 /// One material pair's contact constants.
@@ -170,7 +173,9 @@ pub(crate) struct PairC {
     pub b: [f32; 4],
 }
 
-/// One static triangle: first corner as voxel + offset, two edges, the face normal.
+/// One triangle. A static one: its first corner as a voxel and an offset, its two edges and
+/// the face normal in the world frame. A moving one ([`crate::movers`]): the corner, edges and
+/// normal in its body frame (voxel zero). The offset's w is the triangle's geometry.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub(crate) struct Tri {
@@ -301,6 +306,8 @@ pub(crate) struct Scene {
     pub pairs: Vec<PairC>,
     /// The world's particles' radii (not the empty slots').
     pub radius: Vec<f64>,
+    /// The moving geometries, in the world's order.
+    pub movers: Vec<Mover>,
 }
 
 /// The linear (SJKR) cohesion's energy density k, J/m³, for the shader (0: none). JKR is
@@ -319,7 +326,7 @@ fn v4(v: Vec3, w: f32) -> [f32; 4] {
 impl Scene {
     /// The GPU form of `world` now, with room for `capacity` (slots past the world's
     /// particles are empty). Refuses what this backend does not simulate yet (JKR cohesion,
-    /// EPSD rolling, particle sources, moving geometries), naming it.
+    /// EPSD rolling, particle sources), naming it.
     pub fn from_world(world: &World, capacity: Capacity) -> Result<Scene, GpuError> {
         let config = world.config();
         let materials = world.materials();
@@ -334,14 +341,14 @@ impl Scene {
         if world.sources().next().is_some() {
             return Err(GpuError::Unsupported("particle factories (sources)".into()));
         }
-        if let Some(g) = world
+        let moving = world
             .geometries()
             .iter()
-            .find(|g| !g.motion.is_stationary())
-        {
-            return Err(GpuError::Unsupported(format!(
-                "moving geometries ({:?} moves)",
-                g.name
+            .filter(|g| !g.motion.is_stationary())
+            .count();
+        if moving > MAX_MOVERS {
+            return Err(GpuError::Capacity(format!(
+                "{moving} moving geometries (at most {MAX_MOVERS})"
             )));
         }
         let p = world.particles();
@@ -394,9 +401,15 @@ impl Scene {
                 });
             }
         }
+        // The static triangles first, in the world's frame and binned into its voxels; then
+        // each moving mesh's in its body frame, binned into its body grid.
+        let reach = 1.01 * max_radius;
         let mut tris = Vec::new();
         let mut corners = Vec::new();
-        for g in world.geometries() {
+        for (index, g) in world.geometries().iter().enumerate() {
+            if !g.motion.is_stationary() {
+                continue;
+            }
             let pose = g.motion.pose_at(world.time());
             for (t, normal) in g.mesh.normals().iter().enumerate() {
                 let [a, b, c] = g
@@ -407,14 +420,38 @@ impl Scene {
                 let (cell, v0) = grid.to_voxel_unwrapped(a);
                 tris.push(Tri {
                     cell: [cell[0], cell[1], cell[2], g.material.0 as i32],
-                    v0: [v0[0], v0[1], v0[2], 0.0],
+                    v0: [v0[0], v0[1], v0[2], index as f32],
                     e1: v4(b - a, 0.0),
                     e2: v4(c - a, 0.0),
                     normal: v4(pose.rotation * normal, 0.0),
                 });
             }
         }
-        let tri_grid = bin_triangles(&grid, &corners, 1.01 * max_radius);
+        let mut tri_grid = bin_triangles(&grid, &corners, reach);
+        let mut movers = Vec::new();
+        for (index, g) in world.geometries().iter().enumerate() {
+            if g.motion.is_stationary() {
+                continue;
+            }
+            let body = bin_body_mesh(&g.mesh, grid.voxel.min(), reach, tris.len() as u32)?;
+            for (t, normal) in g.mesh.normals().iter().enumerate() {
+                let [a, b, c] = g.mesh.corners(t);
+                tris.push(Tri {
+                    cell: [0, 0, 0, g.material.0 as i32],
+                    v0: v4(a, index as f32),
+                    e1: v4(b - a, 0.0),
+                    e2: v4(c - a, 0.0),
+                    normal: v4(*normal, 0.0),
+                });
+            }
+            movers.push(Mover {
+                geometry: index,
+                motion: g.motion.clone(),
+                grid: body.grid,
+                lists_at: tri_grid.len(),
+            });
+            tri_grid.extend_from_slice(&body.lists);
+        }
         let slots = capacity.particles;
         // Empty slots: material -1 (dead), the rest zero.
         let mut cell = vec![[0, 0, 0, -1]; slots];
@@ -448,6 +485,7 @@ impl Scene {
             gravity: v4(config.gravity, dt as f32),
             misc: [dt as f32, 0.5 * skin as f32, skin as f32, smooth_cos as f32],
             misc2: [1e-3 * min_radius as f32, 1.0, 0.0, 0.0],
+            movers: [movers.len() as u32, 0, 0, 0],
         };
         Ok(Scene {
             grid,
@@ -461,6 +499,7 @@ impl Scene {
             tri_grid,
             pairs,
             radius: p.radius.clone(),
+            movers,
         })
     }
 }

@@ -3,11 +3,12 @@
 use bytemuck::Pod;
 use repose_engine::integrate::Integrator;
 use repose_engine::math::Vec3;
-use repose_engine::world::World;
+use repose_engine::world::{GeometrySample, World};
 use wgpu::util::DeviceExt;
 
 use repose_engine::particles::ParticleSpec;
 
+use crate::movers::{frames_at, Frames, Mover};
 use crate::scene::{
     particle_record, Capacity, Grid, Params, Record, Scene, Voxel, BIN_CAPACITY,
     NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
@@ -18,6 +19,15 @@ const SHADER: &str = include_str!("shaders/dem.wgsl");
 
 /// Steps encoded into one command buffer.
 const STEPS_PER_SUBMIT: u64 = 100;
+
+/// Load records (one per recorded force evaluation, each a force and a torque per moving
+/// geometry) the device holds before the host reads them back.
+const SERIES_RECORDS: usize = 16_384;
+
+/// One force evaluation's block of moving-geometry frames (a multiple of every adapter's
+/// uniform offset alignment, at most 256).
+const FRAME_BYTES: u64 = std::mem::size_of::<Frames>() as u64;
+const _: () = assert!(FRAME_BYTES % 256 == 0);
 
 /// Control words (the shader's `ctl`).
 mod ctl {
@@ -42,6 +52,7 @@ struct Pipelines {
     kick_drift: wgpu::ComputePipeline,
     half_kick: wgpu::ComputePipeline,
     fastest: wgpu::ComputePipeline,
+    reduce_loads: wgpu::ComputePipeline,
 }
 
 struct Buffers {
@@ -54,6 +65,7 @@ struct Buffers {
     nbn: wgpu::Buffer,
     nbr: wgpu::Buffer,
     ctl: wgpu::Buffer,
+    series: wgpu::Buffer,
     bytes: u64,
 }
 
@@ -102,6 +114,18 @@ pub struct GpuWorld {
     pipelines: Pipelines,
     buffers: Buffers,
     main_group: wgpu::BindGroup,
+    /// The moving geometries and their frames, one block per force evaluation of a
+    /// submission (bound at a dynamic offset).
+    movers: Vec<Mover>,
+    frames: wgpu::Buffer,
+    frames_group: wgpu::BindGroup,
+    /// Steps between two recorded force evaluations (the CPU engine's
+    /// `geometry_record_interval`).
+    record_interval: u64,
+    /// The times of the load records on the device not read back yet, in record order.
+    pending: Vec<f64>,
+    /// Per moving geometry, the loads read back.
+    loads: Vec<Vec<GeometrySample>>,
     step_params: wgpu::BindGroup,
     start_params: wgpu::BindGroup,
     /// Removed grains' slots refilled by [`GpuWorld::insert`].
@@ -223,6 +247,10 @@ impl GpuWorld {
         let binn = zeroed("binn", cells * 4);
         let walls = zeroed("walls", n64 * WALL_CAPACITY as u64 * 32);
         let ctl = zeroed("ctl", ctl::WORDS as u64 * 4);
+        // Each grain's load on each moving geometry, then their sums (`reduce_loads`).
+        let movers = scene.movers.len() as u64;
+        let wload = zeroed("wload", n64 * movers * 32);
+        let series = zeroed("series", SERIES_RECORDS as u64 * movers * 32);
 
         let storage_entry = |binding: u32| wgpu::BindGroupLayoutEntry {
             binding,
@@ -236,7 +264,40 @@ impl GpuWorld {
         };
         let main_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("main"),
-            entries: &(0..20).map(storage_entry).collect::<Vec<_>>(),
+            entries: &(0..22).map(storage_entry).collect::<Vec<_>>(),
+        });
+        let frames_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("frames"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(FRAME_BYTES),
+                },
+                count: None,
+            }],
+        });
+        // One block per force evaluation of a submission (its steps and a Verlet start-up).
+        let frames = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("frames"),
+            size: FRAME_BYTES * (STEPS_PER_SUBMIT + 1),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        bytes += frames.size();
+        let frames_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("frames"),
+            layout: &frames_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &frames,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(FRAME_BYTES),
+                }),
+            }],
         });
         let params_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("params"),
@@ -251,9 +312,9 @@ impl GpuWorld {
                 count: None,
             }],
         });
-        let all: [&wgpu::Buffer; 20] = [
+        let all: [&wgpu::Buffer; 22] = [
             &cell, &off, &vel, &omg, &frc, &trq, &disp, &nbr, &nbn, &spr, &nbr2, &nbn2, &spr2,
-            &bins, &binn, &walls, &tris, &pc, &ctl, &tri_grid,
+            &bins, &binn, &walls, &tris, &pc, &ctl, &tri_grid, &wload, &series,
         ];
         let main_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("main"),
@@ -294,7 +355,7 @@ impl GpuWorld {
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("step"),
-            bind_group_layouts: &[&main_layout, &params_layout],
+            bind_group_layouts: &[&main_layout, &params_layout, &frames_layout],
             push_constant_ranges: &[],
         });
         let pipeline = |entry: &str, layout: &wgpu::PipelineLayout| {
@@ -318,6 +379,7 @@ impl GpuWorld {
             kick_drift: pipeline("kick_drift", &layout),
             half_kick: pipeline("half_kick", &layout),
             fastest: pipeline("fastest", &layout),
+            reduce_loads: pipeline("reduce_loads", &layout),
         };
         if let Some(e) = pollster::block_on(device.pop_error_scope()) {
             return Err(GpuError::Capacity(format!("allocating {bytes} bytes: {e}")));
@@ -354,9 +416,16 @@ impl GpuWorld {
                 nbn,
                 nbr,
                 ctl,
+                series,
                 bytes,
             },
             main_group,
+            loads: vec![Vec::new(); scene.movers.len()],
+            movers: scene.movers,
+            frames,
+            frames_group,
+            record_interval: world.config().geometry_record_interval.max(1),
+            pending: Vec::new(),
             step_params,
             start_params,
             time: world.time(),
@@ -528,11 +597,23 @@ impl GpuWorld {
     }
 
     /// Advances `steps` steps (queued: call [`GpuWorld::finish`] or read something back to
-    /// wait for them).
-    pub fn run(&mut self, steps: u64) {
+    /// wait for them). Errors: the device was lost while the moving geometries' load records
+    /// were read back (every 16 384 records).
+    pub fn run(&mut self, steps: u64) -> Result<(), GpuError> {
         let mut left = steps;
         while left > 0 {
             let chunk = left.min(STEPS_PER_SUBMIT);
+            // The CPU engine records a step's loads when its count after the step is a
+            // multiple of the interval (and never the Verlet start-up's).
+            let records: Vec<bool> = (1..=chunk)
+                .map(|k| !self.movers.is_empty() && (self.steps + k) % self.record_interval == 0)
+                .collect();
+            let recorded = records.iter().filter(|&&r| r).count();
+            if self.pending.len() + recorded > SERIES_RECORDS {
+                self.read_loads()?;
+            }
+            let startup = self.integrator == Integrator::VelocityVerlet && !self.forces_current;
+            self.write_frames(&records, startup);
             let mut encoder = self
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -544,15 +625,17 @@ impl GpuWorld {
                     timestamp_writes: None,
                 });
                 pass.set_bind_group(0, &self.main_group, &[]);
-                if self.integrator == Integrator::VelocityVerlet && !self.forces_current {
+                let mut evaluation = 0;
+                if startup {
                     pass.set_bind_group(1, &self.start_params, &[]);
+                    self.set_frames(&mut pass, &mut evaluation);
                     self.rebuild_phase(&mut pass);
                     self.dispatch(&mut pass, &self.pipelines.forces, self.n);
                 }
                 self.forces_current = true;
                 pass.set_bind_group(1, &self.step_params, &[]);
-                for _ in 0..chunk {
-                    self.encode_step(&mut pass);
+                for &record in &records {
+                    self.encode_step(&mut pass, &mut evaluation, record);
                 }
             }
             self.queue.submit([encoder.finish()]);
@@ -562,33 +645,130 @@ impl GpuWorld {
             self.steps += chunk;
             left -= chunk;
         }
+        Ok(())
+    }
+
+    /// Writes the moving geometries' frames for the force evaluations of the next steps
+    /// (`records`: whether each step records its loads), in the order they run: a Verlet
+    /// start-up's at the present time, then one per step, at the step's start (symplectic
+    /// Euler) or end (velocity Verlet), the times the CPU engine evaluates its forces at.
+    /// Notes the recorded evaluations' times as pending.
+    fn write_frames(&mut self, records: &[bool], startup: bool) {
+        if self.movers.is_empty() {
+            return;
+        }
+        let mut frames = Vec::with_capacity(records.len() + 1);
+        let mut t = self.time;
+        if startup {
+            frames.push(frames_at(&self.movers, &self.grid, t, -1));
+        }
+        for &record in records {
+            let end = t + self.time_step;
+            let at = match self.integrator {
+                Integrator::SymplecticEuler => t,
+                Integrator::VelocityVerlet => end,
+            };
+            let slot = if record {
+                self.pending.push(at);
+                self.pending.len() as i32 - 1
+            } else {
+                -1
+            };
+            frames.push(frames_at(&self.movers, &self.grid, at, slot));
+            t = end;
+        }
+        self.queue
+            .write_buffer(&self.frames, 0, bytemuck::cast_slice(&frames));
+    }
+
+    /// Binds the frames of the next force evaluation.
+    fn set_frames(&self, pass: &mut wgpu::ComputePass, evaluation: &mut u32) {
+        let offset = if self.movers.is_empty() {
+            0
+        } else {
+            *evaluation * FRAME_BYTES as u32
+        };
+        pass.set_bind_group(2, &self.frames_group, &[offset]);
+        *evaluation += 1;
+    }
+
+    /// Reads the pending load records back into the series.
+    fn read_loads(&mut self) -> Result<(), GpuError> {
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let movers = self.movers.len();
+        let words: Vec<[f32; 4]> = self.read_prefix(
+            &self.buffers.series,
+            (self.pending.len() * movers * 32) as u64,
+        )?;
+        let v = |w: [f32; 4]| Vec3::new(w[0] as f64, w[1] as f64, w[2] as f64);
+        for (r, &time) in self.pending.iter().enumerate() {
+            for (m, series) in self.loads.iter_mut().enumerate() {
+                let at = 2 * (r * movers + m);
+                series.push(GeometrySample {
+                    time,
+                    force: v(words[at]),
+                    torque: v(words[at + 1]),
+                });
+            }
+        }
+        self.pending.clear();
+        Ok(())
+    }
+
+    /// The loads recorded on moving geometry `geometry` (its index in the world the GPU world
+    /// was built from), as the CPU engine's `World::geometry_series` has them: every
+    /// `geometry_record_interval` steps since the start or the last
+    /// [`GpuWorld::clear_geometry_series`], the force the grains exert on it and its torque
+    /// about its reference point, at the time of the force evaluation. Summed in f32 in a
+    /// fixed order (the same bits on one adapter). A static geometry's loads are not summed on
+    /// the GPU: an error naming it.
+    pub fn geometry_series(&mut self, geometry: usize) -> Result<&[GeometrySample], GpuError> {
+        let Some(m) = self.movers.iter().position(|m| m.geometry == geometry) else {
+            return Err(GpuError::Unsupported(format!(
+                "the loads on geometry {geometry}, which does not move"
+            )));
+        };
+        self.read_loads()?;
+        Ok(&self.loads[m])
+    }
+
+    /// Forgets the loads recorded so far.
+    pub fn clear_geometry_series(&mut self) {
+        self.pending.clear();
+        for series in &mut self.loads {
+            series.clear();
+        }
     }
 
     /// Advances until the world's time reaches `time` (the CPU engine's `run_until`).
-    pub fn run_until(&mut self, time: f64) {
+    pub fn run_until(&mut self, time: f64) -> Result<(), GpuError> {
         let mut t = self.time;
         let mut steps = 0;
         while t < time {
             t += self.time_step;
             steps += 1;
         }
-        self.run(steps);
+        self.run(steps)
     }
 
-    fn encode_step(&self, pass: &mut wgpu::ComputePass) {
+    /// One step's kernels; `record`: sum the moving geometries' loads after its forces.
+    fn encode_step(&self, pass: &mut wgpu::ComputePass, evaluation: &mut u32, record: bool) {
         let p = &self.pipelines;
+        self.set_frames(pass, evaluation);
+        if self.integrator == Integrator::VelocityVerlet {
+            self.dispatch(pass, &p.kick_drift, self.n);
+        }
+        self.rebuild_phase(pass);
+        self.dispatch(pass, &p.forces, self.n);
+        if record {
+            pass.set_pipeline(&p.reduce_loads);
+            pass.dispatch_workgroups(self.movers.len() as u32, 1, 1);
+        }
         match self.integrator {
-            Integrator::SymplecticEuler => {
-                self.rebuild_phase(pass);
-                self.dispatch(pass, &p.forces, self.n);
-                self.dispatch(pass, &p.euler, self.n);
-            }
-            Integrator::VelocityVerlet => {
-                self.dispatch(pass, &p.kick_drift, self.n);
-                self.rebuild_phase(pass);
-                self.dispatch(pass, &p.forces, self.n);
-                self.dispatch(pass, &p.half_kick, self.n);
-            }
+            Integrator::SymplecticEuler => self.dispatch(pass, &p.euler, self.n),
+            Integrator::VelocityVerlet => self.dispatch(pass, &p.half_kick, self.n),
         }
     }
 
@@ -601,7 +781,11 @@ impl GpuWorld {
     }
 
     fn read<T: Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
-        let size = buffer.size();
+        self.read_prefix(buffer, buffer.size())
+    }
+
+    /// The first `size` bytes of `buffer`.
+    fn read_prefix<T: Pod>(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<T>, GpuError> {
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read back"),
             size,
@@ -678,6 +862,7 @@ impl GpuWorld {
             });
             pass.set_bind_group(0, &self.main_group, &[]);
             pass.set_bind_group(1, &self.step_params, &[]);
+            pass.set_bind_group(2, &self.frames_group, &[0]);
             self.dispatch(&mut pass, &self.pipelines.fastest, self.n);
         }
         self.queue.submit([encoder.finish()]);

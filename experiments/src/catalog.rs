@@ -528,9 +528,12 @@ mod tests {
     /// and spec is refused by name and permanently (no worker's GPU runs it), and a GPU run
     /// keeps no checkpoint while the CPU's key stays what it was.
     #[test]
-    fn the_gpu_runs_the_aor_funnel_and_refuses_the_rest_by_name() {
+    fn the_gpu_runs_the_aor_funnel_and_lifted_cylinder_and_refuses_the_rest_by_name() {
         let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
         aor.check_backend(BackendKind::Gpu).unwrap();
+        let lifted = json!({"protocol": "lifted_cylinder"});
+        let lifted = Kind::Aor.prepare(Some("fast"), &lifted).unwrap();
+        lifted.check_backend(BackendKind::Gpu).unwrap();
         let linear = json!({"soil_soil": {"cohesion": {"model": "linear", "energy_density": 1e4}}});
         let cohesive = Kind::Aor.prepare(Some("fast"), &linear).unwrap();
         cohesive.check_backend(BackendKind::Gpu).unwrap();
@@ -561,7 +564,6 @@ mod tests {
         }
         for (over, names) in [
             (json!({"rolling_model": "epsd"}), "rolling_model"),
-            (json!({"protocol": "lifted_cylinder"}), "protocol"),
             (
                 json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
                 "soil_steel.cohesion",

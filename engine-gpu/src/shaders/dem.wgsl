@@ -1,6 +1,6 @@
 // repose's DEM step on the GPU: Hertz-Mindlin no-slip with tangential history and the Coulomb
 // cap, constant-directional-torque rolling friction applied as a brake on the new spin, against
-// other particles and static triangles; symplectic Euler or velocity Verlet.
+// other particles and static and moving triangles; symplectic Euler or velocity Verlet.
 //
 // Positions are integer voxel indices plus f32 offsets inside the voxel (`cell`, `off`): the
 // vector between two nearby particles is (integer difference) * voxel + (offset difference),
@@ -9,7 +9,7 @@
 // Determinism: no float atomics. Integer atomics fill the cell bins in any order, but every
 // particle's neighbour list is sorted by index before use, each pair's force is computed in
 // one canonical orientation (lower index first) by both of its particles, and every particle
-// sums its own contacts in list order, then its triangles in mesh order.
+// sums its own contacts in list order, then its triangles in mesh order (static, then moving).
 
 const CAP: u32 = 32u;      // neighbours per particle (within the skin)
 const BIN: u32 = 16u;      // particles per grid cell
@@ -34,6 +34,8 @@ struct Params {
     misc: vec4<f32>,
     // duplicate-point tolerance of the triangle contacts, m; rolling brake on (1) or off (0)
     misc2: vec4<f32>,
+    // moving geometries (x)
+    movers: vec4<u32>,
 }
 
 struct PairC {
@@ -43,10 +45,12 @@ struct PairC {
     b: vec4<f32>,
 }
 
+// A static triangle in the world frame (its first corner as a voxel and an offset); a moving
+// one in its body frame (voxel zero, the corner's body coordinates).
 struct Tri {
     // the first corner's voxel (xyz) and the triangle's material (w)
     cell: vec4<i32>,
-    // the first corner's offset in its voxel
+    // the first corner's offset in its voxel; w: the triangle's geometry
     v0: vec4<f32>,
     e1: vec4<f32>,
     e2: vec4<f32>,
@@ -80,7 +84,40 @@ struct Tri {
 // by the largest radius (and 1 %), touches: a grain's own voxel lists every triangle it can
 // touch (its centre is within its radius of the triangle, so inside that grown box).
 @group(0) @binding(19) var<storage, read_write> tgrid: array<u32>;
+// Each grain's force (slot 2m) and torque about the reference point (2m + 1) on moving
+// geometry m at a recorded force evaluation; their sums, two vec4 per geometry per record.
+@group(0) @binding(20) var<storage, read_write> wload: array<vec4<f32>>;
+@group(0) @binding(21) var<storage, read_write> series: array<vec4<f32>>;
 @group(1) @binding(0) var<uniform> P: Params;
+
+const MAX_MOVERS: u32 = 8u;
+
+// A moving geometry at this force evaluation (the host evaluates its motion in f64).
+struct Mover {
+    // the body origin's voxel (xyz); w: where its body grid starts in `tgrid`
+    cell: vec4<i32>,
+    // the body origin's offset (xyz); w: the body grid's cell edge, m
+    off: vec4<f32>,
+    // rows of the body-to-world rotation
+    rot0: vec4<f32>,
+    rot1: vec4<f32>,
+    rot2: vec4<f32>,
+    vel: vec4<f32>,
+    spin: vec4<f32>,
+    // the reference point less the body origin, world frame
+    lever: vec4<f32>,
+    // the body grid's low corner, body frame; w: the geometry's index
+    grid_min: vec4<f32>,
+    grid_dims: vec4<i32>,
+}
+
+struct Frames {
+    // x: the load record this force evaluation writes (-1: none)
+    head: vec4<i32>,
+    m: array<Mover, MAX_MOVERS>,
+}
+
+@group(2) @binding(0) var<uniform> F: Frames;
 
 // Slot k of particle i's neighbour list (and springs, wall histories): column-major, so the
 // threads of a workgroup read consecutive words.
@@ -393,10 +430,36 @@ fn arm() {
 // ---- forces ----
 
 struct TriContact {
-    point: vec3<f32>,   // relative to the particle's centre (the lever arm)
+    point: vec3<f32>,   // relative to the particle's centre (the lever arm), world frame
     normal: vec3<f32>,  // from the surface towards the centre
     overlap: f32,
     material: i32,
+    geometry: i32,
+    mover: i32,                // the moving geometry's slot (-1: static)
+    wall_velocity: vec3<f32>,  // the wall's velocity at the contact point
+    from_axis: vec3<f32>,      // the contact point less the wall's reference point
+}
+
+// A triangle's frame as the grain sees it: the rotation to the world frame (columns: the rows
+// of the body-to-world rotation, so `v * to_world` is the world vector), the wall's velocity
+// and spin, and the grain's centre less the point the wall spins about (world frame).
+struct Wall {
+    mover: i32,
+    to_world: mat3x3<f32>,
+    velocity: vec3<f32>,
+    spin: vec3<f32>,
+    centre_from_axis: vec3<f32>,
+}
+
+fn static_wall() -> Wall {
+    var w: Wall;
+    w.mover = -1;
+    w.to_world = mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0),
+        vec3<f32>(0.0, 0.0, 1.0));
+    w.velocity = vec3<f32>(0.0);
+    w.spin = vec3<f32>(0.0);
+    w.centre_from_axis = vec3<f32>(0.0);
+    return w;
 }
 
 // The closest point of triangle t to p (p relative to the first corner), relative to the
@@ -434,6 +497,55 @@ fn closest_on_triangle(p: vec3<f32>, ab: vec3<f32>, ac: vec3<f32>) -> vec3<f32> 
     }
     let denom = 1.0 / (va + vb + vc);
     return ab * (vb * denom) + ac * (vc * denom);
+}
+
+// Offers triangle `tri`'s contact with grain of radius `ri` to the candidates: `p` is the
+// grain's centre relative to the triangle's first corner in the triangle's frame (`wall`).
+fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, tri: Tri,
+         p: vec3<f32>, wall: Wall, ri: f32) {
+    let q = closest_on_triangle(p, tri.e1.xyz, tri.e2.xyz);
+    let d = p - q;
+    let dist2 = dot(d, d);
+    if (!(dist2 < ri * ri)) {
+        return;
+    }
+    let geometry = i32(tri.v0.w);
+    let point = (q - p) * wall.to_world;
+    let tol = P.misc2.x;
+    for (var c = 0u; c < *nc; c++) {
+        let e = (*cand)[c].point - point;
+        if ((*cand)[c].geometry == geometry && dot(e, e) <= tol * tol) {
+            return;
+        }
+    }
+    if (*nc == WCAND) {
+        atomicAdd(&ctl[6], 1u);
+        return;
+    }
+    let dist = sqrt(dist2);
+    var n = tri.normal.xyz;
+    if (dot(n, d) < 0.0) {
+        n = -n;
+    }
+    if (dist > 1e-6 * ri) {
+        // At an edge or a corner the direction to the centre is the normal (on the face
+        // both agree).
+        let to_centre = d * (1.0 / dist);
+        if (dot(to_centre, n) < 0.9999) {
+            n = to_centre;
+        }
+    }
+    var tc: TriContact;
+    tc.point = point;
+    tc.normal = n * wall.to_world;
+    tc.overlap = ri - dist;
+    tc.material = tri.cell.w;
+    tc.geometry = geometry;
+    tc.mover = wall.mover;
+    tc.from_axis = point + wall.centre_from_axis;
+    tc.wall_velocity = wall.velocity + cross(wall.spin, tc.from_axis);
+    (*cand)[*nc] = tc;
+    *nc += 1u;
 }
 
 @compute @workgroup_size(WG)
@@ -475,60 +587,47 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
     }
 
-    // The triangles listed in the grain's voxel, in mesh order; a point found twice (a shared
-    // edge or corner) counts once, and of contacts whose normals are within the distinct angle
-    // the deepest is kept.
+    // The static triangles listed in the grain's voxel, in mesh order, then each moving
+    // geometry's listed in the grain's cell of its body grid; within a geometry a point found
+    // twice (a shared edge or corner) counts once, and of contacts whose normals are within the
+    // distinct angle the deepest is kept.
     var cand: array<TriContact, WCAND>;
     var nc = 0u;
     let ci = cell[i].xyz;
     let oi = off[i].xyz;
-    let tol = P.misc2.x;
     let voxel = cell_index(ci);
     let listed = P.ncells + 1u;
     let last = tgrid[voxel + 1u];
+    let fixed = static_wall();
     for (var e = tgrid[voxel]; e < last; e++) {
         let tri = tris[tgrid[listed + e]];
         let p = vec3<f32>(ci - tri.cell.xyz) * P.csize.xyz + (oi - tri.v0.xyz);
-        let q = closest_on_triangle(p, tri.e1.xyz, tri.e2.xyz);
-        let d = p - q;
-        let dist2 = dot(d, d);
-        if (!(dist2 < ri * ri)) {
+        offer(&cand, &nc, tri, p, fixed, ri);
+    }
+    for (var m = 0u; m < P.movers.x; m++) {
+        let g = F.m[m];
+        // The grain's centre from the body origin, world frame, then body frame.
+        let from_origin = vec3<f32>(ci - g.cell.xyz) * P.csize.xyz + (oi - g.off.xyz);
+        var w: Wall;
+        w.mover = i32(m);
+        w.to_world = mat3x3<f32>(g.rot0.xyz, g.rot1.xyz, g.rot2.xyz);
+        w.velocity = g.vel.xyz;
+        w.spin = g.spin.xyz;
+        w.centre_from_axis = from_origin - g.lever.xyz;
+        let body = w.to_world * from_origin;
+        let u = (body - g.grid_min.xyz) / g.off.w;
+        if (any(u < vec3<f32>(0.0)) || any(u >= vec3<f32>(g.grid_dims.xyz))) {
             continue;
         }
-        var duplicate = false;
-        for (var c = 0u; c < nc; c++) {
-            let e = (cand[c].point + p) - q;
-            if (dot(e, e) <= tol * tol) {
-                duplicate = true;
-            }
+        let k = vec3<u32>(u);
+        let dims = vec3<u32>(g.grid_dims.xyz);
+        let c = u32(g.cell.w) + k.x + dims.x * (k.y + dims.y * k.z);
+        let entries = u32(g.cell.w) + dims.x * dims.y * dims.z + 1u;
+        let end = tgrid[c + 1u];
+        for (var e = tgrid[c]; e < end; e++) {
+            let tri = tris[tgrid[entries + e]];
+            offer(&cand, &nc, tri, body - tri.v0.xyz, w, ri);
         }
-        if (duplicate) {
-            continue;
-        }
-        if (nc == WCAND) {
-            atomicAdd(&ctl[6], 1u);
-            continue;
-        }
-        let dist = sqrt(dist2);
-        var n = tri.normal.xyz;
-        if (dot(n, d) < 0.0) {
-            n = -n;
-        }
-        if (dist > 1e-6 * ri) {
-            // At an edge or a corner the direction to the centre is the normal (on the face
-            // both agree).
-            let to_centre = d * (1.0 / dist);
-            if (dot(to_centre, n) < 0.9999) {
-                n = to_centre;
-            }
-        }
-        var tc: TriContact;
-        tc.point = q - p;
-        tc.normal = n;
-        tc.overlap = ri - dist;
-        tc.material = tri.cell.w;
-        cand[nc] = tc;
-        nc++;
     }
     // Deepest first (ties by point), then drop those within the distinct angle of a kept one.
     for (var a = 1u; a < nc; a++) {
@@ -545,7 +644,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var a = 0u; a < nc; a++) {
         var distinct = true;
         for (var b = 0u; b < kept; b++) {
-            if (dot(cand[b].normal, cand[a].normal) > P.misc.w) {
+            if (cand[b].geometry == cand[a].geometry
+                && dot(cand[b].normal, cand[a].normal) > P.misc.w) {
                 distinct = false;
             }
         }
@@ -554,7 +654,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
             kept++;
         }
     }
-    // Each contact takes the spring of the previous contact whose normal is closest (> 0.9).
+    // Each contact takes the spring of the previous contact with the same geometry whose normal
+    // is closest (> 0.9).
     var old_n: array<vec4<f32>, WCAP>;
     var old_s: array<vec4<f32>, WCAP>;
     for (var h = 0u; h < WCAP; h++) {
@@ -562,6 +663,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         old_s[h] = walls[slot(i, 2u * h + 1u)];
     }
     let wi = omg[i].xyz;
+    var load_f: array<vec3<f32>, MAX_MOVERS>;
+    var load_t: array<vec3<f32>, MAX_MOVERS>;
     for (var a = 0u; a < WCAP; a++) {
         if (a >= kept) {
             walls[slot(i, 2u * a)] = vec4<f32>(0.0);
@@ -572,7 +675,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         var best = 0.9;
         var spring = vec3<f32>(0.0);
         for (var h = 0u; h < WCAP; h++) {
-            if (old_n[h].w > 0.0) {
+            if (old_n[h].w == f32(tc.geometry + 1)) {
                 let dn = dot(old_n[h].xyz, tc.normal);
                 if (dn > best) {
                     best = dn;
@@ -581,7 +684,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
         let arm = tc.point;
-        let vrel = vi.xyz + cross(wi, arm);
+        let vrel = vi.xyz + cross(wi, arm) - tc.wall_velocity;
         let c = pair_constants(cell[i].w, tc.material);
         let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, spring);
         var force = h.force;
@@ -592,11 +695,59 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         f += force;
         tq += cross(arm, force);
         moment += c.b.y * h.normal_force * length(arm);
-        walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, 1.0);
+        if (tc.mover >= 0) {
+            load_f[tc.mover] -= force;
+            load_t[tc.mover] -= cross(tc.from_axis, force);
+        }
+        walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, f32(tc.geometry + 1));
         walls[slot(i, 2u * a + 1u)] = vec4<f32>(h.spring, 0.0);
     }
     frc[i] = vec4<f32>(f, moment);
     trq[i] = vec4<f32>(tq, touching);
+    if (F.head.x >= 0) {
+        for (var m = 0u; m < P.movers.x; m++) {
+            wload[slot(i, 2u * m)] = vec4<f32>(load_f[m], 0.0);
+            wload[slot(i, 2u * m + 1u)] = vec4<f32>(load_t[m], 0.0);
+        }
+    }
+}
+
+// ---- loads on the moving geometries ----
+
+const RWG: u32 = 256u;
+var<workgroup> red_f: array<vec3<f32>, RWG>;
+var<workgroup> red_t: array<vec3<f32>, RWG>;
+
+// Workgroup m sums the grains' loads on moving geometry m into the evaluation's record: each
+// thread its grains t, t + 256, ... in order, then a fixed tree. The same bits every time.
+@compute @workgroup_size(RWG)
+fn reduce_loads(@builtin(workgroup_id) wg: vec3<u32>,
+                @builtin(local_invocation_id) lid: vec3<u32>) {
+    let m = wg.x;
+    let t = lid.x;
+    var f = vec3<f32>(0.0);
+    var q = vec3<f32>(0.0);
+    for (var i = t; i < P.n; i += RWG) {
+        if (alive(i)) {
+            f += wload[slot(i, 2u * m)].xyz;
+            q += wload[slot(i, 2u * m + 1u)].xyz;
+        }
+    }
+    red_f[t] = f;
+    red_t[t] = q;
+    workgroupBarrier();
+    for (var s = RWG / 2u; s > 0u; s = s / 2u) {
+        if (t < s) {
+            red_f[t] += red_f[t + s];
+            red_t[t] += red_t[t + s];
+        }
+        workgroupBarrier();
+    }
+    if (t == 0u) {
+        let r = u32(F.head.x) * P.movers.x + m;
+        series[2u * r] = vec4<f32>(red_f[0], 0.0);
+        series[2u * r + 1u] = vec4<f32>(red_t[0], 0.0);
+    }
 }
 
 // ---- integration ----

@@ -54,7 +54,7 @@ fn the_same_run_twice_is_bit_identical() {
     let (world, _) = bed_lattice(500, 5).unwrap();
     let run = || {
         let mut w = GpuWorld::new(&gpu, &world).unwrap();
-        w.run(600);
+        w.run(600).unwrap();
         w.state_bytes().unwrap()
     };
     let (a, b) = (run(), run());
@@ -82,7 +82,7 @@ fn neighbour_lists_hold_every_touching_pair_across_periodic_faces() {
     let mut g = GpuWorld::new(&gpu, &world).unwrap();
     let mut touching_pairs = 0;
     for _ in 0..4 {
-        g.run(50);
+        g.run(50).unwrap();
         let lists = g.neighbour_lists().unwrap();
         let voxels = g.voxels().unwrap();
         let grid = *g.grid();
@@ -173,7 +173,7 @@ fn grains_crossing_the_periodic_faces_come_back_on_the_far_side() {
     }
     let mut g = GpuWorld::new(&gpu, &world).unwrap();
     let steps = 300;
-    g.run(steps);
+    g.run(steps).unwrap();
     let p = g.particles().unwrap();
     let t = steps as f64 * dt;
     for (k, &(x0, v)) in start.iter().enumerate() {

@@ -102,8 +102,8 @@ fn fall_and_land(
 ) -> (GpuParticles, GpuParticles) {
     let mut lowest = vec![f64::INFINITY; slots.len()];
     for _ in 0..10 {
-        a.run(250);
-        b.run(250);
+        a.run(250).unwrap();
+        b.run(250).unwrap();
         let p = a.particles().unwrap();
         for (low, &s) in lowest.iter_mut().zip(slots) {
             assert!(!p.removed[s], "slot {s} was removed");
@@ -137,7 +137,7 @@ fn grains_inserted_mid_run_fall_and_land_as_in_a_world_built_with_them() {
             max_radius: R,
         };
         let mut a = GpuWorld::with_capacity(&gpu, &with(&base, &first), capacity).unwrap();
-        a.run(300);
+        a.run(300).unwrap();
         let slots = a.insert(&added).unwrap();
         assert_eq!(slots, (5..11).collect::<Vec<_>>());
         let mut b = GpuWorld::with_capacity(&gpu, &with(&base, &added), capacity).unwrap();
@@ -173,7 +173,7 @@ fn leavers_among_resting() -> Vec<ParticleSpec> {
 fn run_until_removed(world: &mut GpuWorld, removed: u64) {
     while world.counters().unwrap().removed < removed {
         assert!(world.steps() < 5000, "the grains did not leave");
-        world.run(200);
+        world.run(200).unwrap();
     }
 }
 
@@ -241,9 +241,9 @@ fn invalid_grains_are_refused_by_name() {
         }
     }
     assert_eq!(w.len(), 0);
-    w.run(10);
+    w.run(10).unwrap();
     assert_eq!(w.insert(&[grain(0.0, 0.0, 0.02, 0.0)]).unwrap(), vec![0]);
-    w.run(10);
+    w.run(10).unwrap();
     let p = w.particles().unwrap();
     assert_eq!(p.position.len(), 1);
     assert!(
@@ -270,10 +270,10 @@ fn a_run_with_insertions_is_bit_identical_when_repeated() {
             // Four refilled slots, two fresh ones, mid-chunk of the neighbour lists' life.
             let slots = w.insert(&stacks()).unwrap();
             assert_eq!(slots, vec![1, 2, 4, 5, 6, 7]);
-            w.run(700);
+            w.run(700).unwrap();
             let last = w.insert(&[grain(-0.005, 0.0, 0.01, 0.0)]).unwrap();
             assert_eq!(last, vec![8]);
-            w.run(700);
+            w.run(700).unwrap();
             w.state_bytes().unwrap()
         };
         let (a, b) = (run(), run());
@@ -309,13 +309,13 @@ fn a_refilled_slot_starts_without_the_removed_grains_history() {
     let mut a = GpuWorld::with_capacity(&gpu, &with(&base, &[slider]), capacity).unwrap();
     while a.counters().unwrap().removed < 1 {
         assert!(a.steps() < 3000, "the slider did not leave");
-        a.run(10);
+        a.run(10).unwrap();
     }
     let still = grain(0.005, 0.0, resting_z, 0.0);
     assert_eq!(a.insert(&[still]).unwrap(), vec![0]);
     let mut b = GpuWorld::with_capacity(&gpu, &with(&base, &[still]), capacity).unwrap();
-    a.run(50);
-    b.run(50);
+    a.run(50).unwrap();
+    b.run(50).unwrap();
     let (pa, pb) = (a.particles().unwrap(), b.particles().unwrap());
     println!(
         "refilled slot: v {:?}, built with it: v {:?}",

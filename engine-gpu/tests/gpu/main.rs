@@ -4,4 +4,5 @@
 mod bed;
 mod common;
 mod insertion;
+mod moving;
 mod parity;

@@ -19,8 +19,8 @@ use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, World, WorldConfig};
 use repose_engine_gpu::{Gpu, GpuWorld};
 
-const BALL: MaterialId = MaterialId(0);
-const WALL: MaterialId = MaterialId(1);
+pub(crate) const BALL: MaterialId = MaterialId(0);
+pub(crate) const WALL: MaterialId = MaterialId(1);
 
 fn ball_material() -> Material {
     Material {
@@ -40,7 +40,7 @@ fn wall_material() -> Material {
     }
 }
 
-fn table(restitution: f64, friction: f64, rolling: f64) -> MaterialTable {
+pub(crate) fn table(restitution: f64, friction: f64, rolling: f64) -> MaterialTable {
     table_with(restitution, friction, rolling, Cohesion::None)
 }
 
@@ -69,7 +69,7 @@ fn table_with(restitution: f64, friction: f64, rolling: f64, cohesion: Cohesion)
     .unwrap()
 }
 
-fn mass(radius: f64) -> f64 {
+pub(crate) fn mass(radius: f64) -> f64 {
     2500.0 * 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3)
 }
 
@@ -78,13 +78,13 @@ fn e_star_same() -> f64 {
     m.youngs_modulus / (2.0 * (1.0 - m.poisson * m.poisson))
 }
 
-fn e_star_wall() -> f64 {
+pub(crate) fn e_star_wall() -> f64 {
     let (a, b) = (ball_material(), wall_material());
     1.0 / ((1.0 - a.poisson.powi(2)) / a.youngs_modulus
         + (1.0 - b.poisson.powi(2)) / b.youngs_modulus)
 }
 
-fn world(materials: MaterialTable, dt: f64, gravity: Vec3, domain: Domain) -> World {
+pub(crate) fn world(materials: MaterialTable, dt: f64, gravity: Vec3, domain: Domain) -> World {
     let mut c = WorldConfig::new(dt, domain);
     c.gravity = gravity;
     c.integrator = Integrator::SymplecticEuler;
@@ -92,7 +92,12 @@ fn world(materials: MaterialTable, dt: f64, gravity: Vec3, domain: Domain) -> Wo
     World::new(materials, c).unwrap()
 }
 
-fn ball(position: Vec3, velocity: Vec3, angular_velocity: Vec3, radius: f64) -> ParticleSpec {
+pub(crate) fn ball(
+    position: Vec3,
+    velocity: Vec3,
+    angular_velocity: Vec3,
+    radius: f64,
+) -> ParticleSpec {
     ParticleSpec {
         position,
         velocity,
@@ -114,19 +119,19 @@ fn add_mesh(world: &mut World, mesh: TriMesh) {
 }
 
 /// A square plane z = 0 of 2 × cells² triangles (the engine's generator).
-fn plane(half_width: f64, cells: usize) -> TriMesh {
+pub(crate) fn plane(half_width: f64, cells: usize) -> TriMesh {
     generators::plane(2.0 * half_width, 2.0 * half_width, cells, cells).unwrap()
 }
 
 /// The force on particle `k` during the first step from rest: m Δv / Δt.
 fn first_step_force(gpu: &Gpu, world: &World, k: usize) -> Vec3 {
     let mut w = GpuWorld::new(gpu, world).unwrap();
-    w.run(1);
+    w.run(1).unwrap();
     let p = w.particles().unwrap();
     p.velocity[k] * (world.particles().mass[k] / world.config().time_step)
 }
 
-fn hertz(e_star: f64, r_star: f64, overlap: f64) -> f64 {
+pub(crate) fn hertz(e_star: f64, r_star: f64, overlap: f64) -> f64 {
     4.0 / 3.0 * e_star * r_star.sqrt() * overlap.powf(1.5)
 }
 
@@ -276,14 +281,14 @@ fn a_sphere_on_a_triangle_face_edge_and_corner_feels_hertz_along_the_contact_nor
 }
 
 /// Runs `w` in blocks of `block` steps until `done(particles)`, at most `max` steps.
-fn run_until(
+pub(crate) fn run_until(
     gpu_world: &mut GpuWorld,
     block: u64,
     max: u64,
     mut done: impl FnMut(&repose_engine_gpu::GpuParticles, f64) -> bool,
 ) {
     while gpu_world.steps() < max {
-        gpu_world.run(block);
+        gpu_world.run(block).unwrap();
         let p = gpu_world.particles().unwrap();
         if done(&p, gpu_world.time()) {
             return;
@@ -349,7 +354,7 @@ fn a_sphere_dropped_on_a_plane_rebounds_with_the_input_restitution() {
     }
 }
 
-fn resting_overlap(r: f64, g: f64) -> f64 {
+pub(crate) fn resting_overlap(r: f64, g: f64) -> f64 {
     (mass(r) * g / (4.0 / 3.0 * e_star_wall() * r.sqrt())).powf(2.0 / 3.0)
 }
 
@@ -407,9 +412,9 @@ fn cdt_rolling_friction_decelerates_at_five_sevenths_mu_r_g() {
         Vec3::new(v0, 0.0, 0.0),
         Vec3::new(0.0, v0 / r, 0.0),
     );
-    world.run_until(0.05);
+    world.run_until(0.05).unwrap();
     let (t1, v1) = (world.time(), world.particles().unwrap().velocity[0].x);
-    world.run_until(0.3);
+    world.run_until(0.3).unwrap();
     let (t2, v2) = (world.time(), world.particles().unwrap().velocity[0].x);
     let measured = (v2 - v1) / (t2 - t1);
     let expected = -5.0 / 7.0 * mu_r * 9.81;
@@ -441,7 +446,7 @@ fn a_colliding_cloud_conserves_momentum_to_f32_rounding() {
     let start = momentum(&w.particles().velocity);
     let scale: f64 = w.particles().velocity.iter().map(|v| v.norm()).sum();
     let mut g = GpuWorld::new(&gpu, &w).unwrap();
-    g.run(2000);
+    g.run(2000).unwrap();
     let p = g.particles().unwrap();
     assert!(p.removed.iter().all(|r| !r));
     assert!(p.contacts.iter().sum::<u32>() > 0 || g.counters().unwrap().rebuilds > 1);
@@ -491,7 +496,7 @@ fn a_grain_on_a_finely_meshed_plate_feels_what_it_feels_on_two_triangles() {
             ))
             .unwrap();
             let mut g = GpuWorld::new(&gpu, &w).unwrap();
-            g.run(3);
+            g.run(3).unwrap();
             let p = g.particles().unwrap();
             let start = w.particles();
             (

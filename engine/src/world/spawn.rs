@@ -52,9 +52,15 @@ impl World {
     /// True if a sphere at `centre` with `radius` touches no geometry at the current time (the
     /// geometry half of a source's room test, also for a caller that serves sources itself).
     pub fn clear_of_geometries(&self, centre: Vec3, radius: f64) -> bool {
+        self.clear_of_geometries_at(centre, radius, self.time)
+    }
+
+    /// [`World::clear_of_geometries`] with the geometries where their motions put them at
+    /// `time`, s: for a caller that steps the scene elsewhere (the GPU backend).
+    pub fn clear_of_geometries_at(&self, centre: Vec3, radius: f64, time: f64) -> bool {
         let mut contacts = Vec::new();
         self.geometries.iter().all(|g| {
-            let pose = g.motion.pose_at(self.time);
+            let pose = g.motion.pose_at(time);
             let body = pose.inverse_transform_point(&centre.into()).coords;
             contacts.clear();
             g.mesh.sphere_contacts(body, radius, &mut contacts);

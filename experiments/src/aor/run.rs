@@ -582,10 +582,10 @@ pub fn run_aor_with_checkpoints(
     run_aor_on(Engine::Cpu, spec, progress, checkpoints)
 }
 
-/// Ok if the `kind` backend runs `spec`'s protocol; else the error [`run_aor_on`] would give:
-/// the GPU backend does not lift the cylinder's tube (a moving geometry), nor simulate EPSD
-/// rolling or JKR cohesion (linear cohesion it does). Every refusal names the spec's field. A caller may ask before it opens
-/// a GPU (a job server asks at submission).
+/// Ok if the `kind` backend runs `spec`; else the error [`run_aor_on`] would give: the GPU
+/// backend does not simulate EPSD rolling or JKR cohesion (linear cohesion it does). Every
+/// refusal names the spec's field. A caller may ask before it opens a GPU (a job server asks at
+/// submission).
 pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> {
     spec.validate()?;
     if kind != BackendKind::Gpu {
@@ -597,9 +597,7 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
     ]
     .into_iter()
     .find(|(_, pair)| matches!(pair.cohesion, Cohesion::Jkr { .. }));
-    let what = if spec.protocol == Protocol::LiftedCylinder {
-        "the lifted-cylinder protocol (`protocol`: its tube is lifted, a moving geometry)".into()
-    } else if spec.rolling_model == RollingSpec::Epsd {
+    let what = if spec.rolling_model == RollingSpec::Epsd {
         "the elastic-plastic spring-dashpot (EPSD) rolling model (`rolling_model`)".into()
     } else if let Some((pair, _)) = cohesive {
         format!("JKR cohesion (`{pair}.cohesion`)")
@@ -616,9 +614,9 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
 /// measurement on any backend ([`crate::backend`]); the result names the engine
 /// (`engine_version`). On the CPU it is [`run_aor_with_checkpoints`], bit for bit.
 ///
-/// The GPU backend runs the funnel protocol (the factory is served from the host, see
-/// [`crate::backend::GpuBackend`]) and refuses by name what it does not simulate: the lifted
-/// cylinder (its tube moves), EPSD rolling, JKR cohesion, and checkpoints (a GPU run is not
+/// The GPU backend runs both protocols (the factory is served from the host, see
+/// [`crate::backend::GpuBackend`]; the lifted tube is a moving geometry) and refuses by name
+/// what it does not simulate: EPSD rolling, JKR cohesion, and checkpoints (a GPU run is not
 /// continued from a saved state: `checkpoints` must be the default).
 pub fn run_aor_on(
     engine: Engine<'_>,

@@ -1,15 +1,16 @@
 //! The GPU engine (`repose-engine-gpu`) as a [`Backend`].
 //!
-//! The scene's world (particles, static geometries, materials, configuration) is uploaded to
+//! The scene's world (particles, static and moving geometries, materials, configuration) is
+//! uploaded to
 //! a [`GpuWorld`] with a slot for every grain its particle sources can insert. The sources are
 //! taken out of the world ([`World::take_sources`]) and served from the host by the engine's
 //! own code ([`ParticleSource::spawn`], with the world's random stream, as the CPU world serves
 //! them), before the first step and then every [`SERVE_EVERY`] steps: a grain enters at most
 //! that many steps after it falls due (the CPU engine: 10), the mass rate is the factory's
 //! books either way. A source's room test reads the grains near its region back from the GPU
-//! and tests the walls with [`World::clear_of_geometries`]; its new grains go in with
-//! [`GpuWorld::insert`] (into removed grains' slots first). Grains that leave the box are
-//! removed on the GPU.
+//! and tests the walls where they are then with [`World::clear_of_geometries_at`]; its new
+//! grains go in with [`GpuWorld::insert`] (into removed grains' slots first). Grains that leave
+//! the box are removed on the GPU.
 //!
 //! Deterministic on one adapter: the same scene gives the same steps, read-backs, draws and
 //! insertions, so the same bits (tested).
@@ -180,8 +181,8 @@ fn minimum_image(domain: &Domain, mut d: Vec3) -> Vec3 {
 
 impl GpuBackend {
     /// Uploads `world` to `gpu` and serves its sources for the first step. Errors: what the
-    /// GPU backend does not simulate (JKR cohesion, EPSD rolling, moving geometries), named; a
-    /// scene that does not fit the adapter.
+    /// GPU backend does not simulate (JKR cohesion, EPSD rolling), named; a scene that does not
+    /// fit the adapter.
     pub fn new(gpu: &Gpu, mut world: World) -> Result<GpuBackend, BackendError> {
         let sources = world.take_sources();
         let rng = world.rng().clone();
@@ -252,7 +253,7 @@ impl GpuBackend {
                 {
                     Ok(near) => {
                         near.is_free(centre, radius)
-                            && self.scene.clear_of_geometries(centre, radius)
+                            && self.scene.clear_of_geometries_at(centre, radius, t)
                     }
                     Err(_) => false,
                 },
@@ -348,7 +349,7 @@ impl Backend for GpuBackend {
 
     fn advance(&mut self, max_steps: u64) -> Result<u64, BackendError> {
         let steps = max_steps.clamp(1, SERVE_EVERY - self.since_serve);
-        self.gpu_world.run(steps);
+        self.gpu_world.run(steps)?;
         self.since_serve += steps;
         if self.since_serve == SERVE_EVERY {
             self.since_serve = 0;

@@ -69,7 +69,6 @@ async fn a_backend_the_experiment_cannot_run_on_is_a_422_naming_experiment_backe
     // An `aor` spec the GPU does not simulate, naming the spec's field.
     for (spec, names) in [
         (json!({"rolling_model": "epsd"}), "rolling_model"),
-        (json!({"protocol": "lifted_cylinder"}), "protocol"),
         (
             json!({"soil_soil": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
             "soil_soil.cohesion",
@@ -89,6 +88,15 @@ async fn a_backend_the_experiment_cannot_run_on_is_a_422_naming_experiment_backe
         let (status, body) = server.post("/v1/batches", &request).await;
         assert_eq!(status, StatusCode::CREATED, "{spec} on the CPU: {body}");
     }
+    // The lifted cylinder (a moving tube) runs on the GPU.
+    let mut lifted = aor_batch("gpu");
+    lifted["experiment"]["spec"] = json!({"protocol": "lifted_cylinder"});
+    let (status, body) = server.post("/v1/batches", &lifted).await;
+    assert_eq!(
+        status,
+        StatusCode::CREATED,
+        "the lifted cylinder on the GPU: {body}"
+    );
     // A campaign's experiment is checked the same way.
     let mut campaign = paper::paper_campaign_json("gpu lookup campaign");
     campaign["experiment"]["backend"] = json!("gpu");
