@@ -18,7 +18,7 @@ use repose_experiments::aor::{
     check_backend, measure_heap, rig_meshes, run_aor_on, side_view_svg, AorCheckpoint, AorSpec,
     Checkpoints, Control, PictureOptions, SaveCheckpoint,
 };
-use repose_experiments::backend::{BackendKind, Engine, Gpu};
+use repose_experiments::backend::BackendKind;
 use repose_experiments::Spec;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -114,25 +114,17 @@ pub fn run(args: &AorArgs) -> Result<()> {
         return measure_file(&spec, file, args.out.as_deref());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    let gpu = match args.backend {
-        Backend::Cpu => None,
-        Backend::Gpu => {
-            check_backend(BackendKind::Gpu, &spec).context("--backend gpu")?;
-            if args.checkpoint.is_some() {
-                bail!(
-                    "--checkpoint with --backend gpu: a GPU run cannot be continued from a \
-                     saved state (run it without --checkpoint)"
-                );
-            }
-            let gpu = Gpu::open().context("--backend gpu")?;
-            eprintln!("GPU: {}", gpu.describe());
-            Some(gpu)
+    if args.backend == Backend::Gpu {
+        check_backend(BackendKind::Gpu, &spec).context("--backend gpu")?;
+        if args.checkpoint.is_some() {
+            bail!(
+                "--checkpoint with --backend gpu: a GPU run cannot be continued from a saved \
+                 state (run it without --checkpoint)"
+            );
         }
-    };
-    let engine = match &gpu {
-        Some(gpu) => Engine::Gpu(gpu),
-        None => Engine::Cpu,
-    };
+    }
+    let gpu = crate::backend::open_gpu(args.backend)?;
+    let engine = crate::backend::engine(gpu.as_ref());
     crate::local_run::create_dirs([out.as_path()])?;
     let pool = crate::local_run::thread_pool(args.threads)?;
     let resume = match &args.checkpoint {

@@ -26,3 +26,25 @@ pub fn open_worker_gpu(
     eprintln!("GPU: {}", opened.describe());
     Ok(Some(std::sync::Arc::new(opened)))
 }
+
+/// The GPU a command's `--backend gpu` runs on, opened (its adapter named on stderr); `None`
+/// for the CPU. No adapter is an error naming the problem, never a fall-back to the CPU.
+pub fn open_gpu(backend: Backend) -> anyhow::Result<Option<repose_experiments::backend::Gpu>> {
+    use anyhow::Context;
+    match backend {
+        Backend::Cpu => Ok(None),
+        Backend::Gpu => {
+            let gpu = repose_experiments::backend::Gpu::open().context("--backend gpu")?;
+            eprintln!("GPU: {}", gpu.describe());
+            Ok(Some(gpu))
+        }
+    }
+}
+
+/// The engine a command runs on: the GPU it opened, else the CPU.
+pub fn engine(
+    gpu: Option<&repose_experiments::backend::Gpu>,
+) -> repose_experiments::backend::Engine<'_> {
+    use repose_experiments::backend::Engine;
+    gpu.map_or(Engine::Cpu, Engine::Gpu)
+}

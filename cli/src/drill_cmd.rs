@@ -5,12 +5,17 @@
 //! torques in N·m, forces in N, energies in J) and writes `result.json`, `section.svg` (vertical
 //! section through the hole axis), `forces.svg` and `forces.csv` (torque and axial force
 //! against time) into `--out`. With `--bed-cache DIR` the settled bed is stored in DIR under its
-//! key (`<key>.json`) and reused by later runs with the same bed parameters.
+//! key (`<key>.json`) and reused by later runs with the same bed parameters. `--backend gpu`
+//! settles the bed and drills on the GPU engine (its bed key ends in `-gpu`).
 
+use crate::backend::Backend;
 use crate::local_run::{run_on_bed_and_write, RunFiles};
 use anyhow::{Context, Result};
 use clap::Args;
-use repose_experiments::drill::{DrillResult, DrillRun, DrillSpec, StlDrill};
+use repose_experiments::backend::BackendKind;
+use repose_experiments::drill::{
+    check_backend, DrillOn, DrillResult, DrillRun, DrillSpec, StlDrill,
+};
 use repose_experiments::Spec;
 use std::path::PathBuf;
 
@@ -44,6 +49,11 @@ pub struct DrillArgs {
     /// Worker threads (default: all cores). Results are identical for any count.
     #[arg(long, env = "REPOSE_THREADS")]
     pub threads: Option<usize>,
+    /// The engine: `cpu` (the reference) or `gpu` (wgpu compute: Vulkan, Metal, DX12; the bed
+    /// is settled there too; EPSD rolling and JKR cohesion are refused by name). Without a GPU
+    /// adapter `gpu` is an error, never a fall-back to the CPU.
+    #[arg(long, value_enum, default_value = "cpu")]
+    pub backend: Backend,
     /// Print the effective spec (after --preset/--spec/--set) as JSON and exit.
     #[arg(long)]
     pub print_spec: bool,
@@ -71,8 +81,15 @@ pub fn run(args: &DrillArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
+    if args.backend == Backend::Gpu {
+        check_backend(BackendKind::Gpu, &spec).context("--backend gpu")?;
+    }
+    let gpu = crate::backend::open_gpu(args.backend)?;
     run_on_bed_and_write(
-        &spec,
+        &DrillOn {
+            spec: &spec,
+            engine: crate::backend::engine(gpu.as_ref()),
+        },
         out,
         args.bed_cache.as_deref(),
         args.threads,

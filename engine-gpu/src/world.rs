@@ -833,7 +833,10 @@ impl GpuWorld {
             ctl::BIN_OVERFLOW,
             &format!("particles in a neighbour cell ({BIN_CAPACITY} per cell)"),
         )?;
-        overflow(ctl::WALL_OVERFLOW, "triangle contacts (8 per particle)")?;
+        overflow(
+            ctl::WALL_OVERFLOW,
+            "triangle contact candidates (16 per particle before merging)",
+        )?;
         Ok(words)
     }
 

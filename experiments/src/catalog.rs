@@ -158,9 +158,9 @@ impl ExperimentSpec {
         }
     }
 
-    /// Ok if the `backend` engine runs this spec (on the GPU: `aor`'s funnel without EPSD
-    /// rolling or cohesion); else [`ExperimentError::Unsupported`], naming what it lacks. A
-    /// job server asks at submission, before any worker opens a GPU.
+    /// Ok if the `backend` engine runs this spec (on the GPU: `aor` and `drill` without EPSD
+    /// rolling or JKR cohesion); else [`ExperimentError::Unsupported`], naming what it lacks.
+    /// A job server asks at submission, before any worker opens a GPU.
     pub fn check_backend(&self, backend: BackendKind) -> Result<(), ExperimentError> {
         match self {
             ExperimentSpec::Aor(s) => Aor::check_backend(s, backend),
@@ -524,11 +524,11 @@ mod tests {
         );
     }
 
-    /// Only `aor`'s funnel without EPSD rolling or JKR cohesion runs on the GPU; every other kind
-    /// and spec is refused by name and permanently (no worker's GPU runs it), and a GPU run
-    /// keeps no checkpoint while the CPU's key stays what it was.
+    /// Only `aor` (both protocols) and `drill` without EPSD rolling or JKR cohesion run on the
+    /// GPU; every other kind and spec is refused by name and permanently (no worker's GPU runs
+    /// it), and a GPU run keeps no checkpoint while the CPU's key stays what it was.
     #[test]
-    fn the_gpu_runs_the_aor_funnel_and_lifted_cylinder_and_refuses_the_rest_by_name() {
+    fn the_gpu_runs_aor_and_drill_and_refuses_the_rest_by_name() {
         let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
         aor.check_backend(BackendKind::Gpu).unwrap();
         let lifted = json!({"protocol": "lifted_cylinder"});
@@ -545,7 +545,8 @@ mod tests {
             };
             let spec = kind.prepare(None, &spec).unwrap();
             spec.check_backend(BackendKind::Cpu).unwrap();
-            if kind == Kind::Aor {
+            if matches!(kind, Kind::Aor | Kind::Drill) {
+                spec.check_backend(BackendKind::Gpu).unwrap();
                 continue;
             }
             let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
@@ -569,14 +570,16 @@ mod tests {
                 "soil_steel.cohesion",
             ),
         ] {
-            let spec = Kind::Aor.prepare(Some("fast"), &over).unwrap();
-            spec.check_backend(BackendKind::Cpu).unwrap();
-            let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
-            assert!(
-                matches!(err, ExperimentError::Unsupported { .. }) && err.is_permanent(),
-                "{err:?}"
-            );
-            assert!(err.to_string().contains(names), "{over}: {err}");
+            for kind in [Kind::Aor, Kind::Drill] {
+                let spec = kind.prepare(Some("fast"), &over).unwrap();
+                spec.check_backend(BackendKind::Cpu).unwrap();
+                let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
+                assert!(
+                    matches!(err, ExperimentError::Unsupported { .. }) && err.is_permanent(),
+                    "{kind}: {err:?}"
+                );
+                assert!(err.to_string().contains(names), "{kind} {over}: {err}");
+            }
         }
         assert_eq!(
             aor.checkpoint_key_on(BackendKind::Cpu, 7),

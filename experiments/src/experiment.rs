@@ -13,7 +13,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::backend::{BackendKind, Engine};
+use crate::backend::{BackendError, BackendKind, Engine};
 use crate::progress::Control;
 use crate::soil::BedStore;
 
@@ -250,6 +250,18 @@ impl ExperimentError {
                 "the `{kind}` experiment runs on the CPU backend only, not the {} backend",
                 backend.label()
             ),
+        }
+    }
+
+    /// A run on `backend` that it refused or that failed there: what the backend does not
+    /// simulate is [`ExperimentError::Unsupported`] (with `message`, the run's own wording),
+    /// a GPU failure this machine's ([`ExperimentError::Local`]), so the job may run again.
+    pub fn on_backend(backend: BackendKind, e: BackendError, message: String) -> ExperimentError {
+        match e {
+            BackendError::Unsupported { .. } => ExperimentError::Unsupported { backend, message },
+            BackendError::Gpu(failure) => ExperimentError::Local {
+                message: format!("the {} backend failed: {failure}", backend.label()),
+            },
         }
     }
 

@@ -55,6 +55,8 @@ fn drill_writes_result_pictures_and_csv_and_reuses_the_bed() {
     let second = drill(&dir.path().join("second"), &cache);
     assert_eq!(second["bed"]["reused"], true);
     assert_eq!(second["bed"]["key"], first["bed"]["key"]);
+    assert_eq!(first["engine_version"], second["engine_version"]);
+    assert!(!first["engine_version"].as_str().unwrap().contains("gpu"));
     for k in ["opening_diameter_mm", "effective_depth_mm", "energy_j"] {
         assert_eq!(second[k], first[k], "{k}");
     }
@@ -165,4 +167,32 @@ fn an_stl_drill_is_embedded_in_the_spec_and_checked() {
         "{}",
         stderr(&o)
     );
+}
+
+/// `--backend gpu` refuses what the GPU does not simulate by name, before any adapter is opened
+/// or anything is written (EPSD rolling here; a drill on lavapipe runs in
+/// `experiments`' `drill_gpu` tests).
+#[test]
+fn drill_on_the_gpu_refuses_epsd_rolling_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = repose(&[
+        "drill",
+        "--preset",
+        "fast",
+        "--backend",
+        "gpu",
+        "--set",
+        "rolling_model=epsd",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(
+        err.contains("--backend gpu") && err.contains("EPSD"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing ran");
 }

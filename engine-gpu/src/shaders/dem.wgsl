@@ -14,7 +14,7 @@
 const CAP: u32 = 32u;      // neighbours per particle (within the skin)
 const BIN: u32 = 16u;      // particles per grid cell
 const WCAP: u32 = 4u;      // triangle contacts (with history) per particle
-const WCAND: u32 = 8u;     // triangle contact candidates before merging
+const WCAND: u32 = 16u;    // triangle contact candidates before merging
 const WG: u32 = 128u;
 const DAMPING_FACTOR: f32 = 1.8257418583505538;
 const PI: f32 = 3.141592653589793;

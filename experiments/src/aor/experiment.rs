@@ -10,7 +10,7 @@ use super::run::{
     check_backend, run_aor_on, run_aor_with_checkpoints, AorError, AorRun, Checkpoints, RunStatus,
 };
 use super::spec::{AorSpec, PRESETS};
-use crate::backend::{BackendError, BackendKind, Engine};
+use crate::backend::{BackendKind, Engine};
 use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 use crate::soil::BedStore;
@@ -187,14 +187,9 @@ fn run_on_cpu(
 /// backend does not simulate is [`ExperimentError::Unsupported`], a GPU failure this
 /// machine's ([`ExperimentError::Local`]), anything else the spec's refusal.
 fn run_error(backend: BackendKind, e: AorError) -> ExperimentError {
+    let message = e.to_string();
     match e {
-        AorError::Backend(BackendError::Unsupported { .. }) => ExperimentError::Unsupported {
-            backend,
-            message: e.to_string(),
-        },
-        AorError::Backend(BackendError::Gpu(message)) => ExperimentError::Local {
-            message: format!("the {} backend failed: {message}", backend.label()),
-        },
+        AorError::Backend(b) => ExperimentError::on_backend(backend, b, message),
         e => ExperimentError::refused(&e),
     }
 }
@@ -202,6 +197,7 @@ fn run_error(backend: BackendKind, e: AorError) -> ExperimentError {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::backend::BackendError;
 
     /// A GPU that fails during a run is the machine's failure (the job runs again); what the
     /// GPU does not simulate is the spec's, for good; the CPU's refusals stay the spec's.

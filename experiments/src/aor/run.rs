@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use repose_engine::distribution::SizeDistribution;
 use repose_engine::factory::{Factory, FactorySpec, ParticleSource, Region};
 use repose_engine::kinematics::{Motion, TranslationSegment};
-use repose_engine::material::{rayleigh_time, Cohesion};
+use repose_engine::material::rayleigh_time;
 use repose_engine::math::{Pose, Vec3};
 use repose_engine::mesh::generators::{cylinder, funnel, plane};
 use repose_engine::mesh::{FunnelSpec, FunnelTop, TriMesh};
@@ -26,8 +26,8 @@ use super::measure::{measure_angle_of_repose, AngleOfRepose, MeasureError, Measu
 use super::picture::{side_view_svg, PictureOptions};
 use super::rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 use super::spec::{AorSpec, Protocol, SpecError};
-use crate::backend::{Backend, BackendError, BackendKind, Engine, Grains};
-use crate::soil::RollingSpec;
+use crate::backend::{steps_until, Backend, BackendError, BackendKind, Engine, Grains};
+use crate::soil::unsupported_on_gpu;
 // The progress callback's types (phases here: `filling`, `lifting`, `settling`, `measuring`;
 // filling is the first half of the fraction, settling the second).
 pub use crate::progress::{Control, Progress};
@@ -591,23 +591,13 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
     if kind != BackendKind::Gpu {
         return Ok(());
     }
-    let cohesive = [
-        ("soil_soil", &spec.soil_soil),
-        ("soil_steel", &spec.soil_steel),
-    ]
-    .into_iter()
-    .find(|(_, pair)| matches!(pair.cohesion, Cohesion::Jkr { .. }));
-    let what = if spec.rolling_model == RollingSpec::Epsd {
-        "the elastic-plastic spring-dashpot (EPSD) rolling model (`rolling_model`)".into()
-    } else if let Some((pair, _)) = cohesive {
-        format!("JKR cohesion (`{pair}.cohesion`)")
-    } else {
-        return Ok(());
-    };
-    Err(AorError::Backend(BackendError::Unsupported {
-        backend: kind.label(),
-        what,
-    }))
+    match unsupported_on_gpu(spec.rolling_model, &spec.soil_soil, &spec.soil_steel) {
+        None => Ok(()),
+        Some(what) => Err(AorError::Backend(BackendError::Unsupported {
+            backend: kind.label(),
+            what,
+        })),
+    }
 }
 
 /// [`run_aor_with_checkpoints`] on `engine`: the same rig, run loop, rest rule and
@@ -982,19 +972,4 @@ pub fn run_aor_on(
         radii,
         world: boxed.into_world()?,
     })
-}
-
-/// Steps (at least one, at most `cap`) until the time, advanced from `t` by `dt` a step as
-/// the engines advance it, reaches `target`.
-fn steps_until(t: f64, dt: f64, target: f64, cap: u64) -> u64 {
-    let mut t = t;
-    let mut steps = 0;
-    while steps < cap {
-        steps += 1;
-        t += dt;
-        if t >= target {
-            break;
-        }
-    }
-    steps.max(1)
 }

@@ -2,7 +2,7 @@
 //! [`Backend::advance`] (its sources are served inside the step), so a run loop driving it
 //! sees every step, exactly as one that steps the world itself.
 
-use repose_engine::world::{Geometry, World};
+use repose_engine::world::{Geometry, GeometryId, GeometrySample, World};
 
 use super::{first_factory, Backend, BackendError, FactoryBooks, Grains};
 
@@ -49,8 +49,10 @@ impl Backend for CpuBackend {
         Ok(Grains {
             position: &p.position,
             velocity: &p.velocity,
+            angular_velocity: &p.angular_velocity,
             radius: &p.radius,
             mass: &p.mass,
+            inverse_inertia: &p.inverse_inertia,
         })
     }
 
@@ -68,6 +70,10 @@ impl Backend for CpuBackend {
 
     fn geometries(&self) -> &[Geometry] {
         self.world.geometries()
+    }
+
+    fn geometry_series(&mut self, id: GeometryId) -> Result<Vec<GeometrySample>, BackendError> {
+        Ok(self.world.geometry_series(id).to_vec())
     }
 
     fn checkpoint_world(&self) -> Option<&World> {

@@ -24,7 +24,7 @@ use repose_engine::material::MaterialId;
 use repose_engine::math::Vec3;
 use repose_engine::neighbor::Domain;
 use repose_engine::particles::ParticleSpec;
-use repose_engine::world::{Geometry, World};
+use repose_engine::world::{Geometry, GeometryId, GeometrySample, World};
 use repose_engine_gpu::{Capacity, Gpu, GpuWorld};
 
 use super::{first_factory, Backend, BackendError, FactoryBooks, Grains};
@@ -72,6 +72,7 @@ struct Snapshot {
     angular_velocity: Vec<Vec3>,
     radius: Vec<f64>,
     mass: Vec<f64>,
+    inverse_inertia: Vec<f64>,
     material: Vec<MaterialId>,
 }
 
@@ -322,6 +323,9 @@ impl GpuBackend {
                 s.angular_velocity.push(p.angular_velocity[k]);
                 s.radius.push(self.radius[k]);
                 s.mass.push(self.mass[k]);
+                // The CPU engine's solid sphere.
+                s.inverse_inertia
+                    .push(1.0 / (0.4 * self.mass[k] * self.radius[k] * self.radius[k]));
                 s.material.push(self.material[k]);
             }
             self.cache = Some((steps, s));
@@ -363,8 +367,10 @@ impl Backend for GpuBackend {
         Ok(Grains {
             position: &s.position,
             velocity: &s.velocity,
+            angular_velocity: &s.angular_velocity,
             radius: &s.radius,
             mass: &s.mass,
+            inverse_inertia: &s.inverse_inertia,
         })
     }
 
@@ -382,6 +388,10 @@ impl Backend for GpuBackend {
 
     fn geometries(&self) -> &[Geometry] {
         self.scene.geometries()
+    }
+
+    fn geometry_series(&mut self, id: GeometryId) -> Result<Vec<GeometrySample>, BackendError> {
+        Ok(self.gpu_world.geometry_series(id.0 as usize)?.to_vec())
     }
 
     fn checkpoint_world(&self) -> Option<&World> {

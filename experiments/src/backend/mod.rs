@@ -17,7 +17,7 @@ pub use repose_engine_gpu::Gpu;
 
 use repose_engine::factory::ParticleSource;
 use repose_engine::math::Vec3;
-use repose_engine::world::{Geometry, World};
+use repose_engine::world::{Geometry, GeometryId, GeometrySample, World};
 
 /// Which engine runs an experiment, as a spec, a job or a command line names it (serde `cpu`,
 /// `gpu`); a wire type, so it lives in `repose-api`.
@@ -87,8 +87,10 @@ impl From<repose_engine_gpu::GpuError> for BackendError {
 pub struct Grains<'a> {
     pub position: &'a [Vec3],
     pub velocity: &'a [Vec3],
+    pub angular_velocity: &'a [Vec3],
     pub radius: &'a [f64],
     pub mass: &'a [f64],
+    pub inverse_inertia: &'a [f64],
 }
 
 impl Grains<'_> {
@@ -98,6 +100,17 @@ impl Grains<'_> {
 
     pub fn is_empty(&self) -> bool {
         self.position.is_empty()
+    }
+
+    /// Σ ½ m v² + ½ I ω², J, summed in the grains' order (the CPU engine's
+    /// `Particles::kinetic_energy`, to the bit on the CPU backend).
+    pub fn kinetic_energy(&self) -> f64 {
+        (0..self.len())
+            .map(|k| {
+                0.5 * self.mass[k] * self.velocity[k].norm_squared()
+                    + 0.5 * self.angular_velocity[k].norm_squared() / self.inverse_inertia[k]
+            })
+            .sum()
     }
 
     /// Σ ½ m v², J, summed in the grains' order (the CPU engine's
@@ -169,6 +182,12 @@ pub trait Backend {
     /// The scene's geometries, in the order added.
     fn geometries(&self) -> &[Geometry];
 
+    /// The loads recorded on geometry `id` (the CPU engine's `World::geometry_series`: every
+    /// `geometry_record_interval` steps, the grains' force on it and its torque about its
+    /// reference point). The GPU records a moving geometry's only (a static one is an error
+    /// naming it).
+    fn geometry_series(&mut self, id: GeometryId) -> Result<Vec<GeometrySample>, BackendError>;
+
     /// The CPU world a checkpoint keeps, if this backend's run can be checkpointed and
     /// continued bit for bit (the CPU engine's); none otherwise.
     fn checkpoint_world(&self) -> Option<&World>;
@@ -178,4 +197,20 @@ pub trait Backend {
     /// sources' books copied in, e.g. to write the grains out (it is not a continuation of the
     /// backend's trajectory).
     fn into_world(self: Box<Self>) -> Result<World, BackendError>;
+}
+
+/// Steps (at least one, at most `cap`) until the time, advanced from `t` by `dt` a step as
+/// the engines advance it, reaches `target`: what a run loop that looks at the state at
+/// `target` lets a backend take at once.
+pub(crate) fn steps_until(t: f64, dt: f64, target: f64, cap: u64) -> u64 {
+    let mut t = t;
+    let mut steps = 0;
+    while steps < cap {
+        steps += 1;
+        t += dt;
+        if t >= target {
+            break;
+        }
+    }
+    steps.max(1)
 }

@@ -4,9 +4,9 @@
 use serde_json::Value;
 
 use super::bed::bed_key;
-use super::run::{DrillError, DrillStatus};
+use super::run::{check_backend, DrillError, DrillOn, DrillStatus};
 use super::spec::{DrillSpec, PRESETS};
-use crate::backend::Engine;
+use crate::backend::{BackendKind, Engine};
 use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
 use crate::progress::Control;
 use crate::soil::{run_on_bed, BedStore};
@@ -33,14 +33,38 @@ impl Experiment for Drill {
     /// quarter of the progress) and kept there ([`run_on_bed`]). The outcome is the same, bit
     /// for bit, whether the bed was built or reused (`details.bed.reused` says which).
     fn run(
+        spec: DrillSpec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        Drill::run_on(spec, seed, Engine::Cpu, progress, beds, checkpoints)
+    }
+
+    /// [`check_backend`]: the GPU drills without EPSD rolling or JKR cohesion.
+    fn check_backend(spec: &DrillSpec, backend: BackendKind) -> Result<(), ExperimentError> {
+        check_backend(backend, spec).map_err(|e| run_error(backend, e))
+    }
+
+    /// [`Experiment::run`] on `engine`: the bed is settled on that engine too, and kept under
+    /// its own key (a GPU bed's ends in `-gpu`), so a run never drills another engine's bed. A
+    /// GPU failure during the run is this machine's ([`ExperimentError::Local`]).
+    fn run_on(
         mut spec: DrillSpec,
         seed: u64,
+        engine: Engine<'_>,
         progress: &mut dyn FnMut(f64) -> Control,
         beds: &mut dyn BedStore,
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
         spec.seed = seed;
-        let run = run_on_bed(&spec, beds, &mut |p| progress(p.fraction))?;
+        let on = DrillOn {
+            spec: &spec,
+            engine,
+        };
+        let run = run_on_bed(&on, beds, &mut |p| progress(p.fraction))
+            .map_err(|e| run_error(engine.kind(), e))?;
         let details = serde_json::to_value(&run.result).expect("DrillResult serialises");
         match run.result.status {
             DrillStatus::Ok | DrillStatus::NotSettled => {}
@@ -63,11 +87,11 @@ impl Experiment for Drill {
                 ("forces.svg".to_owned(), run.forces_svg()),
             ],
             hold_s: 0.0,
-            engine_version: Engine::Cpu.engine_version(),
+            engine_version: engine.engine_version(),
         })
     }
 
-    /// [`bed_key`] of the spec with the run's seed.
+    /// [`bed_key`] of the spec with the run's seed (on the CPU; a GPU run's ends in `-gpu`).
     fn bed_key(spec: &DrillSpec, seed: u64) -> Option<String> {
         let mut spec = spec.clone();
         spec.seed = seed;
@@ -75,12 +99,14 @@ impl Experiment for Drill {
     }
 }
 
-/// A run that cannot start or report: cancelled, or a spec the run refuses (no field named).
-impl From<DrillError> for ExperimentError {
-    fn from(e: DrillError) -> ExperimentError {
-        match e {
-            DrillError::Cancelled => ExperimentError::Cancelled,
-            other => ExperimentError::refused(&other),
-        }
+/// A run that could not start or failed on `backend`: cancelled; what the backend does not
+/// simulate, or a GPU failure ([`ExperimentError::on_backend`]); else a spec the run refuses
+/// (no field named).
+fn run_error(backend: BackendKind, e: DrillError) -> ExperimentError {
+    let message = e.to_string();
+    match e {
+        DrillError::Cancelled => ExperimentError::Cancelled,
+        DrillError::Backend(b) => ExperimentError::on_backend(backend, b, message),
+        other => ExperimentError::refused(&other),
     }
 }

@@ -12,18 +12,19 @@ use repose_engine::kinematics::{Motion, RotationSegment, TranslationSegment};
 use repose_engine::math::{Pose, Vec3};
 use repose_engine::mesh::generators::{auger, AugerSpec};
 use repose_engine::particles::ParticleSpec;
-use repose_engine::world::{Geometry, GeometryId, World};
+use repose_engine::world::{Geometry, GeometrySample, World};
 use serde::{Deserialize, Serialize};
 
-use super::bed::{bed_key, build_bed};
 use super::measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
+use crate::backend::{steps_until, BackendError, BackendKind, Engine, Grains};
 pub use crate::progress::{Control, Progress};
+use crate::soil::unsupported_on_gpu;
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
     BedError, BedInfo, BedMismatch, HeightField, NoBedStore, OnBed, SettledBed, SettledBy,
-    SplitMix,
+    SplitMix, REPORT_EVERY,
 };
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
@@ -44,6 +45,9 @@ pub enum DrillError {
     /// `wall_time_cap` ran out while the bed was being built.
     #[error("wall_time_cap ({cap_s} s) reached while building the {phase}")]
     WallTimeCap { phase: &'static str, cap_s: f64 },
+    /// The engine backend cannot run the spec or failed (a GPU's).
+    #[error(transparent)]
+    Backend(#[from] BackendError),
 }
 
 impl From<BedError> for DrillError {
@@ -56,6 +60,7 @@ impl From<BedError> for DrillError {
                 phase: "bed",
                 cap_s,
             },
+            BedError::Backend(e) => DrillError::Backend(e),
         }
     }
 }
@@ -160,6 +165,11 @@ pub struct DrillResult {
     pub time_step_s: f64,
     /// Wall time of this call (bed included if it was built here), s.
     pub wall_time_s: f64,
+    /// The engine that computed the run: the CPU engine's version, or
+    /// `<version>+gpu:<adapter>` for the GPU backend ([`Engine::engine_version`]). None in
+    /// results written before the field existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub engine_version: Option<String>,
 }
 
 impl DrillResult {
@@ -264,48 +274,86 @@ impl DrillRun {
     }
 }
 
-/// Builds the bed and drills it: [`build_bed`] then [`run_drill_on_bed`] ([`run_on_bed`]
-/// without a store). The bed takes the first quarter of the progress fraction.
+/// Builds the bed and drills it: [`build_bed`](super::build_bed) then [`run_drill_on_bed`]
+/// ([`run_on_bed`] without a store), on the CPU engine. The bed takes the first quarter of the
+/// progress fraction.
 pub fn run_drill(
     spec: &DrillSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
-    run_on_bed(spec, &mut NoBedStore, progress)
+    run_on_bed(&DrillOn::cpu(spec), &mut NoBedStore, progress)
 }
 
-/// Drills a bed built earlier by [`build_bed`] for a spec with the same [`bed_key`] (e.g. read
-/// back from a cache). Same outcome, bit for bit, as [`run_drill`] on that spec, but for
-/// `bed.reused` (true here) and the wall time (without the bed's).
+/// Drills a bed built earlier by [`build_bed`](super::build_bed) for a spec with the same
+/// [`bed_key`](super::bed_key) (e.g. read back from a cache), on the CPU engine. Same outcome,
+/// bit for bit, as [`run_drill`] on that spec, but for `bed.reused` (true here) and the wall
+/// time (without the bed's).
 pub fn run_drill_on_bed(
     spec: &DrillSpec,
     bed: SettledBed,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<DrillRun, DrillError> {
-    spec.run_on_bed(bed, progress)
+    DrillOn::cpu(spec).run_on_bed(bed, progress)
+}
+
+/// Ok if the `kind` backend runs `spec`; else the error a run would give: the GPU backend does
+/// not simulate EPSD rolling or JKR cohesion, each refusal naming the spec's field. A caller may
+/// ask before it opens a GPU (a job server asks at submission).
+pub fn check_backend(kind: BackendKind, spec: &DrillSpec) -> Result<(), DrillError> {
+    spec.validate()?;
+    if kind != BackendKind::Gpu {
+        return Ok(());
+    }
+    match unsupported_on_gpu(spec.rolling_model, &spec.soil_soil, &spec.soil_steel) {
+        None => Ok(()),
+        Some(what) => Err(DrillError::Backend(BackendError::Unsupported {
+            backend: kind.label(),
+            what,
+        })),
+    }
+}
+
+/// A drilling spec on an engine: its bed is settled and drilled there. The bed's key names the
+/// engine ([`BedRecipe::key_on`](crate::soil::BedRecipe::key_on)), so a run never takes a
+/// bed another engine settled.
+#[derive(Debug, Clone, Copy)]
+pub struct DrillOn<'a> {
+    pub spec: &'a DrillSpec,
+    pub engine: Engine<'a>,
+}
+
+impl<'a> DrillOn<'a> {
+    pub fn cpu(spec: &'a DrillSpec) -> DrillOn<'a> {
+        DrillOn {
+            spec,
+            engine: Engine::Cpu,
+        }
+    }
 }
 
 /// The drilling test runs on a settled bed, built in the first quarter of the progress.
-impl OnBed for DrillSpec {
+impl OnBed for DrillOn<'_> {
     type Run = DrillRun;
     type Error = DrillError;
     const BED_SHARE: f64 = 0.25;
 
     fn bed_key(&self) -> String {
-        bed_key(self)
+        self.spec.bed_recipe().key_on(self.engine.kind())
     }
 
     fn build_bed(
         &self,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<SettledBed, DrillError> {
-        build_bed(self, &mut |p| {
+        check_backend(self.engine.kind(), self.spec)?;
+        Ok(self.spec.bed_recipe().build_on(self.engine, &mut |p| {
             progress(Progress {
                 fraction: p.fraction,
                 phase: "bed",
                 time: p.time,
                 particles: p.particles,
             })
-        })
+        })?)
     }
 
     fn run_on_matching_bed(
@@ -313,7 +361,8 @@ impl OnBed for DrillSpec {
         bed: SettledBed,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<DrillRun, DrillError> {
-        drill(self, bed, progress)
+        check_backend(self.engine.kind(), self.spec)?;
+        drill(self.engine, self.spec, bed, progress)
     }
 
     fn bed_of(run: &mut DrillRun) -> (&mut BedInfo, &mut f64) {
@@ -327,8 +376,10 @@ fn start_angle(seed: u64) -> f64 {
     (rng.symmetric() + 1.0) * std::f64::consts::PI
 }
 
-/// Drills `bed` (handed in: `bed.reused` is true until [`run_on_bed`] says otherwise).
+/// Drills `bed` on `engine` (handed in: `bed.reused` is true until [`run_on_bed`] says
+/// otherwise).
 fn drill(
+    engine: Engine<'_>,
     spec: &DrillSpec,
     bed: SettledBed,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
@@ -436,14 +487,20 @@ fn drill(
     let mut settled_by = SettledBy::TimeCap;
     let (mut depths, mut openings) = (Vec::new(), Vec::new());
     let mut stopped: Option<DrillStatus> = None;
+    let mut backend = engine.start(world)?;
     loop {
-        world.step();
-        let t = world.time();
+        // The loop looks at the state at the next check and every REPORT_EVERY steps; a
+        // backend may take the steps up to the first of them at once (the CPU takes one).
+        let report_in = REPORT_EVERY - backend.steps() % REPORT_EVERY;
+        let (t, dt) = (backend.time(), backend.time_step());
+        backend.advance(steps_until(t, dt, next_check, report_in))?;
+        let t = backend.time();
         let is_check = t >= next_check;
         if is_check {
             next_check += settle.check_interval;
-            ke = kinetic_energy_ratio(&world);
-            let now = measure_world(spec, &world, &motion, surface, mean_r);
+            let grains = backend.grains()?;
+            ke = kinetic_energy_ratio(&grains);
+            let now = measure_grains(spec, &grains, t, &motion, surface, mean_r);
             if let Some(hole) = &now.hole {
                 depths.push(hole.effective_depth);
                 openings.push(hole.opening_diameter);
@@ -459,7 +516,7 @@ fn drill(
             }
         }
         let came_to_rest = settled_by != SettledBy::TimeCap;
-        if world.steps() % 200 == 0 || is_check {
+        if backend.steps() % REPORT_EVERY == 0 || is_check {
             let phase = if t < t_feed {
                 "feeding"
             } else if t < t_withdraw {
@@ -478,7 +535,7 @@ fn drill(
                 fraction,
                 phase,
                 time: t,
-                particles: world.particles().len(),
+                particles: backend.grain_count()?,
             });
             if control == Control::Cancel {
                 stopped = Some(DrillStatus::Cancelled);
@@ -496,15 +553,19 @@ fn drill(
         }
     }
     let came_to_rest = settled_by != SettledBy::TimeCap;
+    let (time, steps, time_step) = (backend.time(), backend.steps(), backend.time_step());
     let _ = progress(Progress {
         fraction: 1.0,
         phase: "measuring",
-        time: world.time(),
-        particles: world.particles().len(),
+        time,
+        particles: backend.grain_count()?,
     });
 
     // Loads.
-    let loads = load_series(&world, auger_id, &motion, surface, spec);
+    let samples = backend.geometry_series(auger_id)?;
+    let loads = load_series(&samples, time_step, &motion, surface, spec);
+    let escaped = backend.removed_count()?;
+    let particles = backend.grain_count()?;
 
     let Measured {
         positions,
@@ -513,7 +574,7 @@ fn drill(
         hole: measurement,
         field: surface_field,
         error: measure_error,
-    } = measure_world(spec, &world, &motion, surface, mean_r);
+    } = measure_grains(spec, &backend.grains()?, time, &motion, surface, mean_r);
     let reach = 0.5 * a.outer_diameter;
     let cylinder = |pos: &[[f64; 3]], r: &[f64]| {
         solid_volume_in_cylinder(pos, r, [0.0, 0.0], reach, surface - d.depth, surface)
@@ -529,7 +590,7 @@ fn drill(
             Some(format!(
                 "wall_time_cap ({} s) reached at t = {:.3} s",
                 spec.wall_time_cap.unwrap_or_default(),
-                world.time()
+                time
             )),
         ),
         None => {
@@ -596,16 +657,18 @@ fn drill(
         series: loads.series,
         bed: BedInfo::of(&bed),
         grain_diameter_mm: 2e3 * mean_r,
-        particles: world.particles().len(),
-        escaped: world.removed_count(),
+        particles,
+        escaped,
         carried_out,
         kinetic_energy_ratio: ke,
         settled_by,
-        simulated_time_s: world.time(),
-        steps: world.steps(),
-        time_step_s: world.config().time_step,
+        simulated_time_s: time,
+        steps,
+        time_step_s: time_step,
         wall_time_s: started.elapsed().as_secs_f64(),
+        engine_version: Some(engine.engine_version()),
     };
+    let world = backend.into_world()?;
     Ok(DrillRun {
         result,
         measurement,
@@ -630,16 +693,17 @@ struct Measured {
     error: Option<String>,
 }
 
-fn measure_world(
+/// The grains `p` and the hole at time `time`, s.
+fn measure_grains(
     spec: &DrillSpec,
-    world: &World,
+    p: &Grains<'_>,
+    time: f64,
     motion: &Motion,
     surface: f64,
     mean_r: f64,
 ) -> Measured {
-    let tip_z = motion.reference_point_at(world.time()).z;
+    let tip_z = motion.reference_point_at(time).z;
     let reach = 0.5 * spec.auger.outer_diameter;
-    let p = world.particles();
     let mut positions = Vec::with_capacity(p.len());
     let mut radii = Vec::with_capacity(p.len());
     let mut carried_out = 0;
@@ -691,17 +755,15 @@ struct Loads {
     feed_energy: f64,
 }
 
-/// The auger's recorded loads (every step): energies integrated step by step, the series
-/// averaged over `measure.series_interval`.
+/// The auger's recorded loads (`samples`, every step of `dt`, s): energies integrated step by
+/// step, the series averaged over `measure.series_interval`.
 fn load_series(
-    world: &World,
-    id: GeometryId,
+    samples: &[GeometrySample],
+    dt: f64,
     motion: &Motion,
     surface: f64,
     spec: &DrillSpec,
 ) -> Loads {
-    let samples = world.geometry_series(id);
-    let dt = world.config().time_step;
     let d = &spec.drill;
     let t_feed = (d.depth + d.start_clearance) / d.feed_speed;
     // Unit vector of the spin (world frame): the drive torque is the soil's torque against it.

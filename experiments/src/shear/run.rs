@@ -39,8 +39,8 @@ use super::spec::{ShearSpec, SpecError};
 use super::window::{PlaneStress, Window};
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
-    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, OnBed,
-    SettledBed, Setup,
+    grains_of, kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore,
+    OnBed, SettledBed, Setup,
 };
 
 /// Why a run could not start or was stopped before it could report (a finished run whose
@@ -73,6 +73,7 @@ impl From<BedError> for ShearError {
                 phase: "building the sample",
                 cap_s,
             },
+            BedError::Backend(e) => build_error("engine", e),
         }
     }
 }
@@ -721,7 +722,7 @@ fn run_stage(
         set_motion(&mut world, lid, Vec3::new(0.0, 0.0, lid_speed(force)))?;
     };
     let consolidation_time = world.time();
-    let kinetic_energy_ratio = kinetic_energy_ratio(&world);
+    let kinetic_energy_ratio = kinetic_energy_ratio(&grains_of(&world));
 
     // Shearing: the upper half and the lid move along +x; the lid keeps the stress.
     let p = world.particles();

@@ -13,11 +13,13 @@ mod surface;
 pub use bed::{
     run_on_bed, BedMismatch, BedStore, NoBedStore, OnBed, SettledBed, SettledBy, BED_FORMAT,
 };
-pub(crate) use recipe::{bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix};
+pub(crate) use recipe::{
+    bin_world, grains_of, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix, REPORT_EVERY,
+};
 pub use recipe::{BedError, BedInfo, BedProgress, BedRecipe, BedSpec, BinSpec, SurfaceReading};
 pub(crate) use spec::{
     check_contacts, check_rayleigh_fraction, default_epsd_damping, default_rayleigh_fraction,
-    max_radius, non_negative, positive,
+    max_radius, non_negative, positive, unsupported_on_gpu,
 };
 pub use spec::{
     coarse_grains, paper_soil_soil, paper_soil_steel, MaterialProps, Materials, RollingSpec,

@@ -28,6 +28,7 @@ use super::spec::{
     RollingSpec, SettleSpec,
 };
 use super::surface::{height_field, surface_level};
+use crate::backend::{steps_until, BackendError, BackendKind, Engine, Grains};
 use crate::progress::Control;
 use crate::spec_path::{invalid, SpecError};
 
@@ -116,6 +117,9 @@ pub enum BedError {
     /// `wall_time_cap` ran out.
     #[error("wall_time_cap ({cap_s} s) reached while building the bed")]
     WallTimeCap { cap_s: f64 },
+    /// The engine backend cannot run the bed or failed (a GPU's).
+    #[error(transparent)]
+    Backend(#[from] BackendError),
 }
 
 fn build_error(part: &'static str, e: impl std::fmt::Display) -> BedError {
@@ -162,12 +166,31 @@ impl BedRecipe {
         bed_key(self)
     }
 
+    /// The key of the bed settled on `backend`: [`BedRecipe::key`] on the CPU, with `-gpu`
+    /// after it on the GPU (a run on one engine never takes the other's bed).
+    pub fn key_on(&self, backend: BackendKind) -> String {
+        match backend {
+            BackendKind::Cpu => self.key(),
+            BackendKind::Gpu => format!("{}-gpu", self.key()),
+        }
+    }
+
     /// Builds and settles the bed. `progress` may cancel ([`BedError::Cancelled`]).
     pub fn build(
         &self,
         progress: &mut dyn FnMut(BedProgress) -> Control,
     ) -> Result<SettledBed, BedError> {
-        build_bed(self, progress)
+        build_bed(Engine::Cpu, self, progress)
+    }
+
+    /// [`BedRecipe::build`] on `engine` (the same lattice and settling rule; the bed's key is
+    /// [`BedRecipe::key_on`] the engine's).
+    pub fn build_on(
+        &self,
+        engine: Engine<'_>,
+        progress: &mut dyn FnMut(BedProgress) -> Control,
+    ) -> Result<SettledBed, BedError> {
+        build_bed(engine, self, progress)
     }
 
     /// The bed's seed.
@@ -359,8 +382,7 @@ pub(crate) fn bin_world(
 }
 
 /// Mean kinetic energy per grain over m g d (mean mass and diameter).
-pub(crate) fn kinetic_energy_ratio(world: &World) -> f64 {
-    let p = world.particles();
+pub(crate) fn kinetic_energy_ratio(p: &Grains<'_>) -> f64 {
     if p.is_empty() {
         return 0.0;
     }
@@ -368,6 +390,19 @@ pub(crate) fn kinetic_energy_ratio(world: &World) -> f64 {
     let mean_mass = p.mass.iter().sum::<f64>() / n;
     let mean_d = 2.0 * p.radius.iter().sum::<f64>() / n;
     p.kinetic_energy() / n / (mean_mass * 9.81 * mean_d)
+}
+
+/// The grains of a CPU world, as a backend hands them out.
+pub(crate) fn grains_of(world: &World) -> Grains<'_> {
+    let p = world.particles();
+    Grains {
+        position: &p.position,
+        velocity: &p.velocity,
+        angular_velocity: &p.angular_velocity,
+        radius: &p.radius,
+        mass: &p.mass,
+        inverse_inertia: &p.inverse_inertia,
+    }
 }
 
 /// True if the last `window` values lie within `tolerance_diameters × d` of each other.
@@ -383,13 +418,12 @@ pub(crate) fn is_stable(values: &[f64], settle: &SettleSpec, d: f64) -> bool {
 }
 
 /// The bed's surface level: median of the probe height field away from the walls.
-fn bed_surface(recipe: &BedRecipe, world: &World, mean_r: f64) -> Result<f64, BedError> {
-    let p = world.particles();
+fn bed_surface(recipe: &BedRecipe, p: &Grains<'_>, mean_r: f64) -> Result<f64, BedError> {
     let positions: Vec<[f64; 3]> = p.position.iter().map(|v| [v.x, v.y, v.z]).collect();
     let m = &recipe.surface;
     let hf = height_field(
         &positions,
-        &p.radius,
+        p.radius,
         0.5 * recipe.bin.size_x,
         0.5 * recipe.bin.size_y,
         m.cell_fraction * mean_r,
@@ -400,8 +434,9 @@ fn bed_surface(recipe: &BedRecipe, world: &World, mean_r: f64) -> Result<f64, Be
     Ok(surface_level(&hf, m.wall_margin_diameters * 2.0 * mean_r))
 }
 
-/// [`BedRecipe::build`].
+/// [`BedRecipe::build_on`].
 fn build_bed(
+    engine: Engine<'_>,
     recipe: &BedRecipe,
     progress: &mut dyn FnMut(BedProgress) -> Control,
 ) -> Result<SettledBed, BedError> {
@@ -466,14 +501,20 @@ fn build_bed(
     let mut settled_by = SettledBy::TimeCap;
     let mut levels: Vec<f64> = Vec::new();
     let mean_r = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
+    let mut backend = engine.start(world)?;
     loop {
-        world.step();
-        let t = world.time();
+        // The loop looks at the state at the next check and every REPORT_EVERY steps; a
+        // backend may take the steps up to the first of them at once (the CPU takes one).
+        let report_in = REPORT_EVERY - backend.steps() % REPORT_EVERY;
+        let (t, dt) = (backend.time(), backend.time_step());
+        backend.advance(steps_until(t, dt, next_check, report_in))?;
+        let t = backend.time();
         let is_check = t >= next_check;
         if is_check {
             next_check += settle.check_interval;
-            ke = kinetic_energy_ratio(&world);
-            levels.push(bed_surface(recipe, &world, mean_r)?);
+            let grains = backend.grains()?;
+            ke = kinetic_energy_ratio(&grains);
+            levels.push(bed_surface(recipe, &grains, mean_r)?);
             if ke < settle.kinetic_energy_threshold {
                 settled_by = SettledBy::KineticEnergy;
             } else if is_stable(&levels, settle, 2.0 * mean_r) {
@@ -481,7 +522,7 @@ fn build_bed(
             }
         }
         let settled = settled_by != SettledBy::TimeCap;
-        if world.steps() % 200 == 0 || is_check {
+        if backend.steps() % REPORT_EVERY == 0 || is_check {
             let control = progress(BedProgress {
                 fraction: if settled {
                     1.0
@@ -489,7 +530,7 @@ fn build_bed(
                     (t / deadline).min(1.0)
                 },
                 time: t,
-                particles: world.particles().len(),
+                particles: backend.grain_count()?,
                 kinetic_energy_ratio: ke,
             });
             if control == Control::Cancel {
@@ -500,28 +541,33 @@ fn build_bed(
             break;
         }
         if let Some(cap) = recipe.wall_time_cap {
-            if world.steps() % 200 == 0 && started.elapsed().as_secs_f64() > cap {
+            if backend.steps() % REPORT_EVERY == 0 && started.elapsed().as_secs_f64() > cap {
                 return Err(BedError::WallTimeCap { cap_s: cap });
             }
         }
     }
 
-    let p = world.particles();
+    let (simulated_time_s, steps) = (backend.time(), backend.steps());
+    let escaped = backend.removed_count()?;
+    let p = backend.grains()?;
     let v3 = |v: &Vec3| [v.x, v.y, v.z];
-    let surface_z = bed_surface(recipe, &world, mean_r)?;
+    let surface_z = bed_surface(recipe, &p, mean_r)?;
     Ok(SettledBed {
-        key: bed_key(recipe),
+        key: recipe.key_on(engine.kind()),
         positions: p.position.iter().map(v3).collect(),
         velocities: p.velocity.iter().map(v3).collect(),
         angular_velocities: p.angular_velocity.iter().map(v3).collect(),
-        radii: p.radius.clone(),
+        radii: p.radius.to_vec(),
         surface_z,
         settled: settled_by != SettledBy::TimeCap,
         settled_by,
         kinetic_energy_ratio: ke,
-        simulated_time_s: world.time(),
-        steps: world.steps(),
+        simulated_time_s,
+        steps,
         wall_time_s: started.elapsed().as_secs_f64(),
-        escaped: world.removed_count(),
+        escaped,
     })
 }
+
+/// Steps between two progress reports (and wall-time checks) of a soil run.
+pub(crate) const REPORT_EVERY: u64 = 200;

@@ -8,6 +8,7 @@ mod aor_presets;
 mod aor_run;
 mod aor_spec;
 mod common;
+mod drill_gpu;
 mod drill_run;
 mod drill_spec;
 /// The engine-gpu tests' GPU opener (`gpu()`: skips, or fails under `REPOSE_REQUIRE_GPU=1`,
