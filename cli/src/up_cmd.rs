@@ -78,6 +78,10 @@ pub struct UpArgs {
     /// batches on it (they share it). No adapter is an error at start.
     #[arg(long)]
     pub gpu: bool,
+    /// A run that reports no progress for SECONDS is stuck (a thread hung in a GPU driver): its
+    /// job goes back to the queue for the other local workers and its worker stops. 0: never.
+    #[arg(long, value_name = "SECONDS", default_value_t = 900.0)]
+    pub stall_timeout: f64,
 }
 
 /// Validated settings.
@@ -95,6 +99,7 @@ struct UpConfig {
     checkpoints: PathBuf,
     checkpoint_every: Duration,
     gpu: Option<std::sync::Arc<repose_experiments::backend::Gpu>>,
+    stall_timeout: Option<Duration>,
 }
 
 fn config(args: &UpArgs) -> Result<UpConfig> {
@@ -160,6 +165,7 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         artifacts: args.artifacts.clone(),
         tokens_file,
         gpu: None,
+        stall_timeout: crate::worker_cmd::stall_timeout(args.stall_timeout)?,
     })
 }
 
@@ -171,7 +177,10 @@ pub fn run(args: &UpArgs) -> Result<()> {
     // INFO under their crate's target, so each event shows once.
     crate::init_logging(&format!("warn,{}=info", repose_server::RUNS_LOG_TARGET));
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
-    runtime.block_on(up(config))
+    let outcome = runtime.block_on(up(config));
+    // A stalled run's thread never returns: end without waiting for it.
+    runtime.shutdown_background();
+    outcome
 }
 
 async fn up(config: UpConfig) -> Result<()> {
@@ -207,6 +216,7 @@ async fn up(config: UpConfig) -> Result<()> {
         worker.checkpoint_dir = Some(config.checkpoints.clone());
         worker.checkpoint_every = config.checkpoint_every;
         worker.gpu = config.gpu.clone();
+        worker.stall_timeout = config.stall_timeout;
         let mut stopped = workers_stopped.clone();
         workers.push(tokio::spawn(repose_worker::run(worker, async move {
             let _ = stopped.wait_for(|s| *s).await;

@@ -3,9 +3,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use repose_worker::{run, WorkerConfig};
+use repose_worker::{run, WorkerConfig, WorkerError};
 use std::path::PathBuf;
 use std::time::Duration;
+
+/// Exit status of a worker whose run stalled (`--stall-timeout`): its service manager restarts
+/// it (the systemd unit's `RestartPreventExitStatus=2` spares only refusals).
+pub const STALLED_EXIT: i32 = 3;
 
 /// Longest accepted `--exit-when-idle`: a week.
 const MAX_IDLE_S: f64 = 7.0 * 86_400.0;
@@ -59,6 +63,24 @@ pub struct WorkerArgs {
     /// adapter is an error at start, never a CPU-only worker.
     #[arg(long, env = "REPOSE_GPU")]
     pub gpu: bool,
+    /// A run that reports no progress for SECONDS is stuck (a thread hung in a GPU driver): its
+    /// job is handed back to run elsewhere and the worker exits (status 3) for its service
+    /// manager to start it again. 0: never.
+    #[arg(
+        long,
+        env = "REPOSE_STALL_TIMEOUT",
+        value_name = "SECONDS",
+        default_value_t = 900.0
+    )]
+    pub stall_timeout: f64,
+}
+
+/// `--stall-timeout`: seconds up to a week; 0 turns the watchdog off.
+pub(crate) fn stall_timeout(seconds: f64) -> Result<Option<Duration>> {
+    if !(seconds.is_finite() && (0.0..=MAX_IDLE_S).contains(&seconds)) {
+        bail!("--stall-timeout must be between 0 and {MAX_IDLE_S} seconds, got {seconds}");
+    }
+    Ok((seconds > 0.0).then(|| Duration::from_secs_f64(seconds)))
 }
 
 /// The validated worker configuration.
@@ -86,6 +108,7 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
     let checkpoint_every = checkpoint_interval(args.checkpoint_every)?;
     let mut config = WorkerConfig::new(args.server.clone());
     config.exit_when_idle = exit_when_idle;
+    config.stall_timeout = stall_timeout(args.stall_timeout)?;
     config.token = args.token.clone();
     config.slots = args.slots;
     config.instance_id = args.instance_id;
@@ -112,11 +135,16 @@ pub fn run_worker(args: &WorkerArgs) -> Result<()> {
     config.gpu = crate::backend::open_worker_gpu(args.gpu)?;
     crate::init_logging("info,wgpu_core=warn,wgpu_hal=warn,naga=warn");
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
-    let summary = runtime.block_on(async move {
-        run(config, crate::server_cmd::shutdown_signal())
-            .await
-            .context("worker failed")
-    })?;
+    let outcome = runtime.block_on(run(config, crate::server_cmd::shutdown_signal()));
+    // A stalled run's thread never returns: end without waiting for it.
+    runtime.shutdown_background();
+    if let Err(stalled @ WorkerError::Stalled { .. }) = &outcome {
+        // Not status 2 (a refusal a person must fix, which the service manager leaves alone):
+        // a stalled worker is to be started again.
+        eprintln!("error: worker failed: {stalled}");
+        std::process::exit(STALLED_EXIT);
+    }
+    let summary = outcome.context("worker failed")?;
     if summary.exited_idle {
         eprintln!(
             "no job for the idle limit; exiting after {} completed, {} failed",
@@ -151,6 +179,28 @@ mod tests {
         }
         let cli = Cli::try_parse_from(["repose", "--exit-when-idle=-5"]).unwrap();
         assert!(config(&cli.worker).is_err());
+    }
+
+    #[test]
+    fn stall_timeout_defaults_to_a_quarter_hour_zero_turns_it_off_and_bad_values_are_named() {
+        let cli = Cli::try_parse_from(["repose"]).unwrap();
+        assert_eq!(
+            config_of(&cli).stall_timeout,
+            Some(repose_worker::DEFAULT_STALL_TIMEOUT)
+        );
+        let cli = Cli::try_parse_from(["repose", "--stall-timeout", "0"]).unwrap();
+        assert_eq!(config_of(&cli).stall_timeout, None);
+        let cli = Cli::try_parse_from(["repose", "--stall-timeout", "2.5"]).unwrap();
+        assert_eq!(
+            config_of(&cli).stall_timeout,
+            Some(Duration::from_secs_f64(2.5))
+        );
+        for bad in ["nan", "inf", "1e9", "-1"] {
+            let arg = format!("--stall-timeout={bad}");
+            let cli = Cli::try_parse_from(["repose", arg.as_str()]).unwrap();
+            let err = config(&cli.worker).unwrap_err();
+            assert!(err.to_string().contains("--stall-timeout"), "{bad}: {err}");
+        }
     }
 
     fn config_of(cli: &Cli) -> WorkerConfig {

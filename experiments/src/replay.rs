@@ -42,6 +42,10 @@ pub struct ReplaySpec {
     /// Seconds a worker holds the job before reporting (to emulate simulation time in tests).
     #[serde(default)]
     pub hold_s: f64,
+    /// Seconds the run blocks its thread without reporting progress and without heeding a
+    /// cancel, as a simulation stuck in a GPU driver does (to test a worker's stall watchdog).
+    #[serde(default)]
+    pub stall_s: f64,
 }
 
 fn default_tolerance() -> f64 {
@@ -63,6 +67,9 @@ impl ReplaySpec {
         }
         if !(self.hold_s.is_finite() && (0.0..=3600.0).contains(&self.hold_s)) {
             return Err(invalid("hold_s", "must be between 0 and 3600 s"));
+        }
+        if !(self.stall_s.is_finite() && (0.0..=3600.0).contains(&self.stall_s)) {
+            return Err(invalid("stall_s", "must be between 0 and 3600 s"));
         }
         for (name, value) in &self.values {
             if !value.is_finite() {
@@ -138,6 +145,7 @@ impl Experiment for TableLookup {
         _checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError> {
         start(progress)?;
+        std::thread::sleep(std::time::Duration::from_secs_f64(spec.stall_s));
         let metrics = spec
             .look_up(seed)
             .map_err(|e| ExperimentError::no_result(e.to_string(), Value::Null))?;
@@ -163,6 +171,7 @@ mod tests {
             rows: vec![row(0.0, 10.0), row(1.0, 20.0), row(0.0, 12.0)],
             tolerance: 1e-9,
             hold_s: 0.0,
+            stall_s: 0.0,
         }
     }
 

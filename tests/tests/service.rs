@@ -378,6 +378,55 @@ fn sigterm_releases_the_running_job_without_counting_an_attempt() {
     );
 }
 
+/// A run stuck without progress (the `table_lookup` test aid's `stall_s`: its thread sleeps,
+/// deaf to cancels, as one hung in a GPU driver is): the worker's watchdog hands the job back
+/// as this worker's failure and the worker exits with status 3 (restart me) at once, not after
+/// the stuck thread; the service goes on with a healthy worker.
+#[test]
+fn a_worker_whose_run_stalls_hands_the_job_back_and_exits_for_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = Service::start(dir.path(), 30.0);
+    let mut stuck = replay_batch(2, 0.0);
+    stuck["experiment"]["spec"]["stall_s"] = serde_json::json!(120.0);
+    let batch = service.submit(&stuck);
+    let mut worker = service.start_worker("stalled", &["--stall-timeout", "1"]);
+    let started = std::time::Instant::now();
+    let mut exit = None;
+    while started.elapsed() < Duration::from_secs(60) && exit.is_none() {
+        exit = worker.child.try_wait().unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let log = worker.log_text();
+    let exit = exit.unwrap_or_else(|| panic!("the stalled worker did not exit: {log}"));
+    assert_eq!(exit.code(), Some(3), "{log}");
+    assert!(started.elapsed() < Duration::from_secs(60));
+    assert!(
+        log.contains("no progress") && log.contains("start it again"),
+        "{log}"
+    );
+    let runs = runs(&service, &batch);
+    let tried: Vec<&Value> = runs.iter().filter(|r| r["attempts"] == 1).collect();
+    assert_eq!(tried.len(), 1, "one run was leased: {runs:?}");
+    assert_eq!(
+        tried[0]["status"], "queued",
+        "handed back to run again: {runs:?}"
+    );
+    let error = tried[0]["last_error"].as_str().unwrap_or_default();
+    assert!(error.contains("no progress for"), "{runs:?}");
+
+    // The service goes on: with the stuck batch cancelled, a healthy worker runs another.
+    service.post(
+        &format!("/v1/batches/{batch}/cancel"),
+        &serde_json::json!({}),
+    );
+    let mut runs_fine = replay_batch(2, 0.0);
+    runs_fine["name"] = serde_json::json!("fine");
+    let fine = service.submit(&runs_fine);
+    let _healthy = service.start_worker("healthy", &["--stall-timeout", "1"]);
+    let status = service.wait_finished(&fine, Duration::from_secs(60));
+    assert_eq!(status["state"], "completed", "{status}");
+}
+
 /// `repose up` on `db` with `workers` local workers on any free port; the caller adds the rest.
 fn up_command(db: &std::path::Path, workers: usize) -> std::process::Command {
     let mut command = std::process::Command::new(common::repose_bin());

@@ -88,7 +88,16 @@ pub struct WorkerConfig {
     /// registration, so the server hands it `gpu` jobs too. None: CPU jobs only (the server
     /// gives it no `gpu` job).
     pub gpu: Option<Arc<Gpu>>,
+    /// A run that reports no progress for this long is stuck (a thread hung in a GPU driver,
+    /// an endless loop): its job is reported failed as this worker's (it runs again elsewhere)
+    /// and the worker stops with [`WorkerError::Stalled`], for its supervisor to restart it
+    /// (the stuck thread cannot be ended from inside). None: no watchdog.
+    pub stall_timeout: Option<Duration>,
 }
+
+/// [`WorkerConfig::stall_timeout`]'s default: 15 minutes. Every experiment reports progress at
+/// least every 200 steps or every servo interval, seconds apart even at 200 000 grains.
+pub const DEFAULT_STALL_TIMEOUT: Duration = Duration::from_secs(900);
 
 impl WorkerConfig {
     /// One slot using every core, 20 s long-polls, back-off up to 30 s.
@@ -109,6 +118,7 @@ impl WorkerConfig {
             exit_when_idle: None,
             version: repose_api::version::RELEASE.to_owned(),
             gpu: None,
+            stall_timeout: Some(DEFAULT_STALL_TIMEOUT),
         }
     }
 }
@@ -142,6 +152,15 @@ pub enum WorkerError {
     /// The HTTP client could not be built.
     #[error("HTTP client: {0}")]
     Http(#[from] reqwest::Error),
+    /// A run reported no progress for [`WorkerConfig::stall_timeout`]: its job was reported
+    /// failed (it runs again elsewhere) and the worker stopped. Its thread is still stuck:
+    /// the process should end without waiting for it, and be started again.
+    #[error(
+        "job {job}: the simulation reported no progress for {seconds:.0} s (a thread hung in \
+         a GPU driver, or an endless loop); its job was handed back and this worker stopped: \
+         start it again"
+    )]
+    Stalled { job: Uuid, seconds: f64 },
 }
 
 /// What a worker did before it stopped.
@@ -379,6 +398,8 @@ struct JobSignals {
     progress: AtomicU64,
     /// Set to stop the simulation.
     cancel: AtomicBool,
+    /// Progress reports so far: the stall watchdog's sign of life.
+    beats: AtomicU64,
     /// Why it was cancelled: the lease is gone (don't report) or the worker is stopping
     /// (release).
     lease_lost: AtomicBool,
@@ -425,10 +446,18 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
                 checkpoint_dir: context.config.checkpoint_dir.clone(),
                 checkpoint_every: context.config.checkpoint_every,
             };
-            tokio::task::spawn_blocking(move || {
+            let watched = signals.clone();
+            let simulation = tokio::task::spawn_blocking(move || {
                 simulate(spec, engine, seed, threads, stores, &signals)
-            })
-            .await
+            });
+            tokio::select! {
+                joined = simulation => joined,
+                seconds = stalled(&watched, context.config.stall_timeout) => {
+                    stopper.abort();
+                    heartbeat.abort();
+                    return give_up_stalled(context, &job, seconds).await;
+                }
+            }
         }
         Err(error) => Ok(Err(error)),
     };
@@ -508,6 +537,47 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
             report_failure(context, &job, message, Rerun::Retry).await
         }
     }
+}
+
+/// Completes (with the seconds since the last one) once the run has reported no progress for
+/// `limit`; never without a limit.
+async fn stalled(signals: &JobSignals, limit: Option<Duration>) -> f64 {
+    let Some(limit) = limit else {
+        return std::future::pending().await;
+    };
+    let poll = (limit / 10).clamp(Duration::from_millis(50), Duration::from_secs(5));
+    let mut seen = signals.beats.load(Ordering::Relaxed);
+    let mut since = Instant::now();
+    loop {
+        tokio::time::sleep(poll).await;
+        let beats = signals.beats.load(Ordering::Relaxed);
+        if beats != seen {
+            (seen, since) = (beats, Instant::now());
+        } else if since.elapsed() >= limit {
+            return since.elapsed().as_secs_f64();
+        }
+    }
+}
+
+/// A run stuck for `seconds`: its job goes back to the server as this worker's failure (it
+/// runs again elsewhere) and the worker stops with [`WorkerError::Stalled`]; the stuck thread
+/// is left behind (it cannot be ended from inside: its process must end).
+async fn give_up_stalled(context: &SlotContext, job: &ClaimResponse, seconds: f64) -> JobEnd {
+    tracing::error!(job = %job.job_id, run = %job.run_id, seconds,
+        "the simulation reported no progress; handing its job back and stopping this worker");
+    if let Ok(mut fatal) = context.fatal.lock() {
+        fatal.get_or_insert(WorkerError::Stalled {
+            job: job.job_id,
+            seconds,
+        });
+    }
+    context.stop_sender.send_replace(true);
+    let error = format!(
+        "the simulation reported no progress for {seconds:.0} s (a thread hung in a GPU \
+         driver, or an endless loop) on worker {}; it runs again elsewhere",
+        context.worker_id
+    );
+    report_failure(context, job, error, Rerun::Retry).await
 }
 
 /// Whether a failed job is worth running again, as the worker tells the server.
@@ -709,6 +779,7 @@ fn simulate(
                 signals
                     .progress
                     .store(fraction.clamp(0.0, 1.0).to_bits(), Ordering::Relaxed);
+                signals.beats.fetch_add(1, Ordering::Relaxed);
                 if signals.cancel.load(Ordering::Relaxed) {
                     Control::Cancel
                 } else {
