@@ -108,7 +108,7 @@ pub struct ExperimentTemplate {
     /// `table_lookup` and `formula`.
     pub kind: String,
     /// The engine the runs need: `cpu` (the default) or `gpu` (`aor` and `drill` run on it,
-    /// without EPSD rolling or JKR cohesion). GPU jobs go only to workers that opened a GPU
+    /// without JKR cohesion). GPU jobs go only to workers that opened a GPU
     /// adapter (`repose worker --gpu`).
     #[serde(default, skip_serializing_if = "BackendKind::is_cpu")]
     pub backend: BackendKind,

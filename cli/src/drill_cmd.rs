@@ -50,7 +50,7 @@ pub struct DrillArgs {
     #[arg(long, env = "REPOSE_THREADS")]
     pub threads: Option<usize>,
     /// The engine: `cpu` (the reference) or `gpu` (wgpu compute: Vulkan, Metal, DX12; the bed
-    /// is settled there too; EPSD rolling and JKR cohesion are refused by name). Without a GPU
+    /// is settled there too; JKR cohesion is refused by name). Without a GPU
     /// adapter `gpu` is an error, never a fall-back to the CPU.
     #[arg(long, value_enum, default_value = "cpu")]
     pub backend: Backend,

@@ -326,17 +326,12 @@ fn v4(v: Vec3, w: f32) -> [f32; 4] {
 impl Scene {
     /// The GPU form of `world` now, with room for `capacity` (slots past the world's
     /// particles are empty). Refuses what this backend does not simulate yet (JKR cohesion,
-    /// EPSD rolling, particle sources), naming it.
+    /// particle sources), naming it.
     pub fn from_world(world: &World, capacity: Capacity) -> Result<Scene, GpuError> {
         let config = world.config();
         let materials = world.materials();
         if materials.any_jkr() {
             return Err(GpuError::Unsupported("JKR cohesion".into()));
-        }
-        if config.rolling_model != RollingModel::ConstantDirectionalTorque {
-            return Err(GpuError::Unsupported(
-                "the elastic-plastic spring-dashpot (EPSD) rolling model".into(),
-            ));
         }
         if world.sources().next().is_some() {
             return Err(GpuError::Unsupported("particle factories (sources)".into()));
@@ -484,7 +479,14 @@ impl Scene {
             voxel: v4(grid.voxel, 0.0),
             gravity: v4(config.gravity, dt as f32),
             misc: [dt as f32, 0.5 * skin as f32, skin as f32, smooth_cos as f32],
-            misc2: [1e-3 * min_radius as f32, 1.0, 0.0, 0.0],
+            misc2: match config.rolling_model {
+                RollingModel::ConstantDirectionalTorque => {
+                    [1e-3 * min_radius as f32, 1.0, 0.0, 0.0]
+                }
+                RollingModel::ElasticPlasticSpringDashpot { viscous_damping } => {
+                    [1e-3 * min_radius as f32, 0.0, viscous_damping as f32, 0.0]
+                }
+            },
             movers: [movers.len() as u32, 0, 0, 0],
         };
         Ok(Scene {

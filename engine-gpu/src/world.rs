@@ -172,7 +172,9 @@ impl GpuWorld {
         let scene = Scene::from_world(world, capacity)?;
         let n = scene.cell.len();
         let limits = gpu.limits();
-        let largest = (n * NEIGHBOUR_CAPACITY * 16)
+        // EPSD keeps a rolling spring after each tangential one (the shader's `epsd()`).
+        let springs: u64 = if scene.params.misc2[1] == 0.0 { 2 } else { 1 };
+        let largest = (n * NEIGHBOUR_CAPACITY * 16 * springs as usize)
             .max(scene.grid.cells() * BIN_CAPACITY * 4)
             .max(scene.tri_grid.len() * 4) as u64;
         if largest > limits.max_storage_buffer_binding_size as u64
@@ -238,14 +240,14 @@ impl GpuWorld {
         let list = n64 * NEIGHBOUR_CAPACITY as u64;
         let nbr = zeroed("nbr", list * 4);
         let nbn = zeroed("nbn", n64 * 4);
-        let spr = zeroed("spr", list * 16);
+        let spr = zeroed("spr", list * 16 * springs);
         let nbr2 = zeroed("nbr2", list * 4);
         let nbn2 = zeroed("nbn2", n64 * 4);
-        let spr2 = zeroed("spr2", list * 16);
+        let spr2 = zeroed("spr2", list * 16 * springs);
         let cells = scene.grid.cells() as u64;
         let bins = zeroed("bins", cells * BIN_CAPACITY as u64 * 4);
         let binn = zeroed("binn", cells * 4);
-        let walls = zeroed("walls", n64 * WALL_CAPACITY as u64 * 32);
+        let walls = zeroed("walls", n64 * WALL_CAPACITY as u64 * 16 * (1 + springs));
         let ctl = zeroed("ctl", ctl::WORDS as u64 * 4);
         // Each grain's load on each moving geometry, then their sums (`reduce_loads`).
         let movers = scene.movers.len() as u64;

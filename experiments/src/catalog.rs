@@ -158,8 +158,8 @@ impl ExperimentSpec {
         }
     }
 
-    /// Ok if the `backend` engine runs this spec (on the GPU: `aor` and `drill` without EPSD
-    /// rolling or JKR cohesion); else [`ExperimentError::Unsupported`], naming what it lacks.
+    /// Ok if the `backend` engine runs this spec (on the GPU: `aor` and `drill` without JKR
+    /// cohesion); else [`ExperimentError::Unsupported`], naming what it lacks.
     /// A job server asks at submission, before any worker opens a GPU.
     pub fn check_backend(&self, backend: BackendKind) -> Result<(), ExperimentError> {
         match self {
@@ -524,8 +524,8 @@ mod tests {
         );
     }
 
-    /// Only `aor` (both protocols) and `drill` without EPSD rolling or JKR cohesion run on the
-    /// GPU; every other kind and spec is refused by name and permanently (no worker's GPU runs
+    /// Only `aor` (both protocols) and `drill` without JKR cohesion run on the GPU (EPSD
+    /// rolling and linear cohesion they may have); every other kind and spec is refused by name and permanently (no worker's GPU runs
     /// it), and a GPU run keeps no checkpoint while the CPU's key stays what it was.
     #[test]
     fn the_gpu_runs_aor_and_drill_and_refuses_the_rest_by_name() {
@@ -537,6 +537,11 @@ mod tests {
         let linear = json!({"soil_soil": {"cohesion": {"model": "linear", "energy_density": 1e4}}});
         let cohesive = Kind::Aor.prepare(Some("fast"), &linear).unwrap();
         cohesive.check_backend(BackendKind::Gpu).unwrap();
+        let epsd = json!({"rolling_model": "epsd"});
+        for kind in [Kind::Aor, Kind::Drill] {
+            let spec = kind.prepare(Some("fast"), &epsd).unwrap();
+            spec.check_backend(BackendKind::Gpu).unwrap();
+        }
         for kind in Kind::ALL {
             let spec = match kind {
                 Kind::TableLookup => json!({"values": {"a": 1.0}, "rows": [{"a": 1.0}]}),
@@ -564,7 +569,10 @@ mod tests {
             assert!(err.to_string().contains(&format!("`{kind}`")), "{err}");
         }
         for (over, names) in [
-            (json!({"rolling_model": "epsd"}), "rolling_model"),
+            (
+                json!({"soil_soil": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
+                "soil_soil.cohesion",
+            ),
             (
                 json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
                 "soil_steel.cohesion",

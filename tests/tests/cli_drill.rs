@@ -170,10 +170,10 @@ fn an_stl_drill_is_embedded_in_the_spec_and_checked() {
 }
 
 /// `--backend gpu` refuses what the GPU does not simulate by name, before any adapter is opened
-/// or anything is written (EPSD rolling here; a drill on lavapipe runs in
+/// or anything is written (JKR cohesion here; a drill on lavapipe runs in
 /// `experiments`' `drill_gpu` tests).
 #[test]
-fn drill_on_the_gpu_refuses_epsd_rolling_by_name() {
+fn drill_on_the_gpu_refuses_jkr_cohesion_by_name() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let o = repose(&[
@@ -183,7 +183,7 @@ fn drill_on_the_gpu_refuses_epsd_rolling_by_name() {
         "--backend",
         "gpu",
         "--set",
-        "rolling_model=epsd",
+        r#"soil_soil.cohesion={"model":"jkr","surface_energy":0.1}"#,
         "--out",
         out.to_str().unwrap(),
         "--quiet",
@@ -191,7 +191,7 @@ fn drill_on_the_gpu_refuses_epsd_rolling_by_name() {
     assert!(!o.status.success());
     let err = stderr(&o);
     assert!(
-        err.contains("--backend gpu") && err.contains("EPSD"),
+        err.contains("--backend gpu") && err.contains("JKR"),
         "{err}"
     );
     assert!(!out.exists(), "nothing ran");

@@ -1,5 +1,6 @@
 // repose's DEM step on the GPU: Hertz-Mindlin no-slip with tangential history and the Coulomb
-// cap, constant-directional-torque rolling friction applied as a brake on the new spin, against
+// cap, constant-directional-torque rolling friction applied as a brake on the new spin (or
+// EPSD's rolling spring per contact), against
 // other particles and static and moving triangles; symplectic Euler or velocity Verlet.
 //
 // Positions are integer voxel indices plus f32 offsets inside the voxel (`cell`, `off`): the
@@ -32,7 +33,8 @@ struct Params {
     gravity: vec4<f32>,
     // spring time step, half skin, skin, cos of the distinct angle
     misc: vec4<f32>,
-    // duplicate-point tolerance of the triangle contacts, m; rolling brake on (1) or off (0)
+    // duplicate-point tolerance of the triangle contacts, m; rolling model: 1 CDT (a brake on
+    // the new spin), 0 EPSD (a rolling spring per contact); EPSD's viscous damping ratio
     misc2: vec4<f32>,
     // moving geometries (x)
     movers: vec4<u32>,
@@ -183,6 +185,8 @@ fn rotate_into_tangent_plane(s: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 struct Hertz {
     force: vec3<f32>,
     normal_force: f32,
+    // the tangent normal stiffness 2 E* sqrt(R* overlap)
+    stiffness: f32,
     spring: vec3<f32>,
 }
 
@@ -215,8 +219,48 @@ fn hertz_mindlin(c: PairC, r_star: f32, m_star: f32, overlap: f32, n: vec3<f32>,
     var h: Hertz;
     h.force = n * normal_force + ft;
     h.normal_force = normal_force;
+    h.stiffness = sn;
     h.spring = s;
     return h;
+}
+
+// EPSD rolling (the CPU engine's rolling model `ElasticPlasticSpringDashpot`): the rolling
+// spring per contact, its words after the tangential springs (`spr` slot CAP + k, `walls`
+// slot 2 WCAP + h).
+fn epsd() -> bool {
+    return P.misc2.y == 0.0;
+}
+
+// Words of a grain's triangle histories: normal and spring, and the rolling spring with EPSD.
+fn wall_words() -> u32 {
+    return select(2u, 3u, epsd()) * WCAP;
+}
+
+struct Rolling {
+    torque: vec3<f32>,
+    spring: vec3<f32>,
+}
+
+// The EPSD rolling torque (the CPU engine's `epsd_rolling_torque`): the spring follows the
+// relative rolling velocity at stiffness kr up to the plastic torque, with a dashpot while
+// elastic; kr = 2.25 (2/3 stiffness) mu_r^2 R*^2 (`epsd_rolling_stiffness`).
+fn epsd_rolling(n: vec3<f32>, w_rel: vec3<f32>, stiffness: f32, mu_r: f32, r_star: f32,
+                normal_force: f32, inertia: f32, spring_in: vec3<f32>) -> Rolling {
+    let kr = 2.25 * (stiffness * (2.0 / 3.0)) * mu_r * mu_r * r_star * r_star;
+    let max_torque = mu_r * r_star * normal_force;
+    let damping = P.misc2.z * 2.0 * sqrt(inertia * kr);
+    let omega_r = w_rel - n * dot(n, w_rel);
+    var s = rotate_into_tangent_plane(spring_in, n) - omega_r * (kr * P.misc.x);
+    var out: Rolling;
+    let len2 = dot(s, s);
+    if (len2 > max_torque * max_torque) {
+        s = s * (max_torque / sqrt(len2));
+        out.torque = s;
+    } else {
+        out.torque = s - omega_r * damping;
+    }
+    out.spring = s;
+    return out;
 }
 
 struct PairOut {
@@ -228,11 +272,12 @@ struct PairOut {
     moment_a: f32,
     moment_b: f32,
     spring: vec3<f32>,
+    rolling: vec3<f32>,
 }
 
 // The contact of a and b (a < b), from a's side: both particles call it with the same
 // arguments, so both get the same bits.
-fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>) -> PairOut {
+fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>, rolling_in: vec3<f32>) -> PairOut {
     var o: PairOut;
     o.touching = false;
     o.force = vec3<f32>(0.0);
@@ -241,6 +286,7 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>) -> PairOut {
     o.moment_a = 0.0;
     o.moment_b = 0.0;
     o.spring = vec3<f32>(0.0);
+    o.rolling = vec3<f32>(0.0);
     let d = rel(a, b);
     let ra = off[a].w;
     let rb = off[b].w;
@@ -276,10 +322,20 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>) -> PairOut {
     o.force = force;
     o.torque_a = -n_cross_f * lever_a;
     o.torque_b = -n_cross_f * lever_b;
-    let m = c.b.y * h.normal_force;
-    o.moment_a = m * lever_a;
-    o.moment_b = m * lever_b;
     o.spring = h.spring;
+    if (epsd()) {
+        let inertia_a = 1.0 / omg[a].w + va.w * ra * ra;
+        let inertia_b = 1.0 / omg[b].w + vb.w * rb * rb;
+        let r = epsd_rolling(n, wa - wb, h.stiffness, c.b.y, r_star, h.normal_force,
+            inertia_a * inertia_b / (inertia_a + inertia_b), rolling_in);
+        o.torque_a += r.torque;
+        o.torque_b -= r.torque;
+        o.rolling = r.spring;
+    } else {
+        let m = c.b.y * h.normal_force;
+        o.moment_a = m * lever_a;
+        o.moment_b = m * lever_b;
+    }
     return o;
 }
 
@@ -381,7 +437,7 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
     // springs others hold for the slot belonged to a removed grain.
     let fresh = disp[i].w != 0.0;
     if (fresh) {
-        for (var h = 0u; h < 2u * WCAP; h++) {
+        for (var h = 0u; h < wall_words(); h++) {
             walls[slot(i, h)] = vec4<f32>(0.0);
         }
     }
@@ -393,11 +449,18 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
             k++;
         }
         var s = vec4<f32>(0.0);
+        var r = vec4<f32>(0.0);
         if (k < old_count && nbr[slot(i, k)] == j && disp[j].w == 0.0) {
             s = spr[slot(i, k)];
+            if (epsd()) {
+                r = spr[slot(i, CAP + k)];
+            }
         }
         nbr2[slot(i, a)] = j;
         spr2[slot(i, a)] = s;
+        if (epsd()) {
+            spr2[slot(i, CAP + a)] = r;
+        }
     }
     nbn2[i] = count;
 }
@@ -414,6 +477,9 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var a = 0u; a < count; a++) {
         nbr[slot(i, a)] = nbr2[slot(i, a)];
         spr[slot(i, a)] = spr2[slot(i, a)];
+        if (epsd()) {
+            spr[slot(i, CAP + a)] = spr2[slot(i, CAP + a)];
+        }
     }
 }
 
@@ -437,6 +503,7 @@ struct TriContact {
     geometry: i32,
     mover: i32,                // the moving geometry's slot (-1: static)
     wall_velocity: vec3<f32>,  // the wall's velocity at the contact point
+    wall_spin: vec3<f32>,      // the wall's angular velocity
     from_axis: vec3<f32>,      // the contact point less the wall's reference point
 }
 
@@ -544,6 +611,7 @@ fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, 
     tc.mover = wall.mover;
     tc.from_axis = point + wall.centre_from_axis;
     tc.wall_velocity = wall.velocity + cross(wall.spin, tc.from_axis);
+    tc.wall_spin = wall.spin;
     (*cand)[*nc] = tc;
     *nc += 1u;
 }
@@ -571,13 +639,20 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         let j = nbr[slot(i, k)];
         if (!alive(j)) {
             spr[slot(i, k)] = vec4<f32>(0.0);
+            if (epsd()) {
+                spr[slot(i, CAP + k)] = vec4<f32>(0.0);
+            }
             continue;
         }
         // One call site for both orientations: the two particles of a pair run the same
         // instructions on the same arguments (lower index first), so their copies of the pair's
         // force and spring are the same bits.
         let lower = i < j;
-        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)].xyz);
+        var rolling_in = vec3<f32>(0.0);
+        if (epsd()) {
+            rolling_in = spr[slot(i, CAP + k)].xyz;
+        }
+        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)].xyz, rolling_in);
         if (o.touching) {
             f += select(-o.force, o.force, lower);
             tq += select(o.torque_b, o.torque_a, lower);
@@ -585,6 +660,9 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
             touching += 1.0;
         }
         spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
+        if (epsd()) {
+            spr[slot(i, CAP + k)] = vec4<f32>(o.rolling, 0.0);
+        }
     }
 
     // The static triangles listed in the grain's voxel, in mesh order, then each moving
@@ -658,9 +736,13 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     // is closest (> 0.9).
     var old_n: array<vec4<f32>, WCAP>;
     var old_s: array<vec4<f32>, WCAP>;
+    var old_r: array<vec4<f32>, WCAP>;
     for (var h = 0u; h < WCAP; h++) {
         old_n[h] = walls[slot(i, 2u * h)];
         old_s[h] = walls[slot(i, 2u * h + 1u)];
+        if (epsd()) {
+            old_r[h] = walls[slot(i, 2u * WCAP + h)];
+        }
     }
     let wi = omg[i].xyz;
     var load_f: array<vec3<f32>, MAX_MOVERS>;
@@ -669,17 +751,22 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (a >= kept) {
             walls[slot(i, 2u * a)] = vec4<f32>(0.0);
             walls[slot(i, 2u * a + 1u)] = vec4<f32>(0.0);
+            if (epsd()) {
+                walls[slot(i, 2u * WCAP + a)] = vec4<f32>(0.0);
+            }
             continue;
         }
         let tc = cand[a];
         var best = 0.9;
         var spring = vec3<f32>(0.0);
+        var rolling = vec3<f32>(0.0);
         for (var h = 0u; h < WCAP; h++) {
             if (old_n[h].w == f32(tc.geometry + 1)) {
                 let dn = dot(old_n[h].xyz, tc.normal);
                 if (dn > best) {
                     best = dn;
                     spring = old_s[h].xyz;
+                    rolling = old_r[h].xyz;
                 }
             }
         }
@@ -694,7 +781,14 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         f += force;
         tq += cross(arm, force);
-        moment += c.b.y * h.normal_force * length(arm);
+        if (epsd()) {
+            let r = epsd_rolling(tc.normal, wi - tc.wall_spin, h.stiffness, c.b.y, ri,
+                h.normal_force, 1.0 / omg[i].w + mi * ri * ri, rolling);
+            tq += r.torque;
+            walls[slot(i, 2u * WCAP + a)] = vec4<f32>(r.spring, 0.0);
+        } else {
+            moment += c.b.y * h.normal_force * length(arm);
+        }
         if (tc.mover >= 0) {
             load_f[tc.mover] -= force;
             load_t[tc.mover] -= cross(tc.from_axis, force);

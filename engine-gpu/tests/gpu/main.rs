@@ -3,6 +3,7 @@
 
 mod bed;
 mod common;
+mod epsd;
 mod insertion;
 mod moving;
 mod parity;

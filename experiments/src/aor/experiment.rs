@@ -47,7 +47,7 @@ impl Experiment for Aor {
         Aor::run_on(spec, seed, Engine::Cpu, progress, beds, checkpoints)
     }
 
-    /// [`check_backend`]: the GPU runs the funnel without EPSD rolling or cohesion.
+    /// [`check_backend`]: the GPU runs both protocols without JKR cohesion.
     fn check_backend(spec: &AorSpec, backend: BackendKind) -> Result<(), ExperimentError> {
         check_backend(backend, spec).map_err(|e| run_error(backend, e))
     }

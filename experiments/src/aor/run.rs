@@ -583,7 +583,7 @@ pub fn run_aor_with_checkpoints(
 }
 
 /// Ok if the `kind` backend runs `spec`; else the error [`run_aor_on`] would give: the GPU
-/// backend does not simulate EPSD rolling or JKR cohesion (linear cohesion it does). Every
+/// backend does not simulate JKR cohesion (linear cohesion it does). Every
 /// refusal names the spec's field. A caller may ask before it opens a GPU (a job server asks at
 /// submission).
 pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> {
@@ -591,7 +591,7 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
     if kind != BackendKind::Gpu {
         return Ok(());
     }
-    match unsupported_on_gpu(spec.rolling_model, &spec.soil_soil, &spec.soil_steel) {
+    match unsupported_on_gpu(&spec.soil_soil, &spec.soil_steel) {
         None => Ok(()),
         Some(what) => Err(AorError::Backend(BackendError::Unsupported {
             backend: kind.label(),
@@ -606,7 +606,7 @@ pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> 
 ///
 /// The GPU backend runs both protocols (the factory is served from the host, see
 /// [`crate::backend::GpuBackend`]; the lifted tube is a moving geometry) and refuses by name
-/// what it does not simulate: EPSD rolling, JKR cohesion, and checkpoints (a GPU run is not
+/// what it does not simulate: JKR cohesion, and checkpoints (a GPU run is not
 /// continued from a saved state: `checkpoints` must be the default).
 pub fn run_aor_on(
     engine: Engine<'_>,

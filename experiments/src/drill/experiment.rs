@@ -42,7 +42,7 @@ impl Experiment for Drill {
         Drill::run_on(spec, seed, Engine::Cpu, progress, beds, checkpoints)
     }
 
-    /// [`check_backend`]: the GPU drills without EPSD rolling or JKR cohesion.
+    /// [`check_backend`]: the GPU drills without JKR cohesion.
     fn check_backend(spec: &DrillSpec, backend: BackendKind) -> Result<(), ExperimentError> {
         check_backend(backend, spec).map_err(|e| run_error(backend, e))
     }

@@ -297,14 +297,14 @@ pub fn run_drill_on_bed(
 }
 
 /// Ok if the `kind` backend runs `spec`; else the error a run would give: the GPU backend does
-/// not simulate EPSD rolling or JKR cohesion, each refusal naming the spec's field. A caller may
+/// not simulate JKR cohesion, each refusal naming the spec's field. A caller may
 /// ask before it opens a GPU (a job server asks at submission).
 pub fn check_backend(kind: BackendKind, spec: &DrillSpec) -> Result<(), DrillError> {
     spec.validate()?;
     if kind != BackendKind::Gpu {
         return Ok(());
     }
-    match unsupported_on_gpu(spec.rolling_model, &spec.soil_soil, &spec.soil_steel) {
+    match unsupported_on_gpu(&spec.soil_soil, &spec.soil_steel) {
         None => Ok(()),
         Some(what) => Err(DrillError::Backend(BackendError::Unsupported {
             backend: kind.label(),

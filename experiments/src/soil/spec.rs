@@ -13,18 +13,12 @@ use serde::{Deserialize, Serialize};
 use crate::spec_path::{invalid, SpecError};
 
 /// What the GPU engine does not simulate among a spec's contact settings, naming the spec's
-/// field: EPSD rolling (`rolling_model`) or JKR cohesion (`soil_soil.cohesion`,
-/// `soil_steel.cohesion`); none if it simulates them all (linear cohesion it does).
+/// field: JKR cohesion (`soil_soil.cohesion`, `soil_steel.cohesion`); none if it simulates them
+/// all (both rolling models and linear cohesion it does).
 pub(crate) fn unsupported_on_gpu(
-    rolling_model: RollingSpec,
     soil_soil: &Interaction,
     soil_steel: &Interaction,
 ) -> Option<String> {
-    if rolling_model == RollingSpec::Epsd {
-        return Some(
-            "the elastic-plastic spring-dashpot (EPSD) rolling model (`rolling_model`)".into(),
-        );
-    }
     [("soil_soil", soil_soil), ("soil_steel", soil_steel)]
         .into_iter()
         .find(|(_, pair)| matches!(pair.cohesion, Cohesion::Jkr { .. }))

@@ -257,10 +257,14 @@ fn a_gpu_funnel_run_twice_is_bit_identical() {
 
 #[test]
 fn the_gpu_backend_refuses_what_it_does_not_simulate_by_name() {
-    // EPSD rolling: refused before any GPU is opened.
-    let mut epsd = small();
-    epsd.set("rolling_model", "epsd").unwrap();
-    let refusal = check_backend(BackendKind::Gpu, &epsd).unwrap_err();
+    // JKR cohesion: refused before any GPU is opened.
+    let mut jkr = small();
+    jkr.set(
+        "soil_steel.cohesion",
+        r#"{"model": "jkr", "surface_energy": 0.1}"#,
+    )
+    .unwrap();
+    let refusal = check_backend(BackendKind::Gpu, &jkr).unwrap_err();
     assert!(
         matches!(
             &refusal,
@@ -268,8 +272,11 @@ fn the_gpu_backend_refuses_what_it_does_not_simulate_by_name() {
         ),
         "{refusal:?}"
     );
-    assert!(refusal.to_string().contains("EPSD"), "{refusal}");
-    check_backend(BackendKind::Cpu, &epsd).unwrap();
+    assert!(
+        refusal.to_string().contains("soil_steel.cohesion"),
+        "{refusal}"
+    );
+    check_backend(BackendKind::Cpu, &jkr).unwrap();
     check_backend(BackendKind::Gpu, &small()).unwrap();
     check_backend(BackendKind::Gpu, &small_lifted()).unwrap();
 
@@ -284,7 +291,7 @@ fn the_gpu_backend_refuses_what_it_does_not_simulate_by_name() {
         .unwrap_err()
         .to_string()
     };
-    assert_eq!(refused(&epsd, Checkpoints::default()), refusal.to_string());
+    assert_eq!(refused(&jkr, Checkpoints::default()), refusal.to_string());
     let mut keep = |_: &[u8]| {};
     let message = refused(
         &small(),
