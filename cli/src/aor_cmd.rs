@@ -15,10 +15,9 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use repose_engine::output::write_particles_csv;
 use repose_experiments::aor::{
-    check_backend, measure_heap, rig_meshes, run_aor_on, side_view_svg, AorCheckpoint, AorSpec,
-    Checkpoints, Control, PictureOptions, SaveCheckpoint,
+    measure_heap, rig_meshes, run_aor_on, side_view_svg, AorCheckpoint, AorSpec, Checkpoints,
+    Control, PictureOptions, SaveCheckpoint,
 };
-use repose_experiments::backend::BackendKind;
 use repose_experiments::Spec;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -114,14 +113,11 @@ pub fn run(args: &AorArgs) -> Result<()> {
         return measure_file(&spec, file, args.out.as_deref());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    if args.backend == Backend::Gpu {
-        check_backend(BackendKind::Gpu, &spec).context("--backend gpu")?;
-        if args.checkpoint.is_some() {
-            bail!(
-                "--checkpoint with --backend gpu: a GPU run cannot be continued from a saved \
-                 state (run it without --checkpoint)"
-            );
-        }
+    if args.backend == Backend::Gpu && args.checkpoint.is_some() {
+        bail!(
+            "--checkpoint with --backend gpu: a GPU run cannot be continued from a saved state \
+             (run it without --checkpoint)"
+        );
     }
     let gpu = crate::backend::open_gpu(args.backend)?;
     let engine = crate::backend::engine(gpu.as_ref());

@@ -12,10 +12,7 @@ use crate::backend::Backend;
 use crate::local_run::{run_on_bed_and_write, RunFiles};
 use anyhow::{Context, Result};
 use clap::Args;
-use repose_experiments::backend::BackendKind;
-use repose_experiments::drill::{
-    check_backend, DrillOn, DrillResult, DrillRun, DrillSpec, StlDrill,
-};
+use repose_experiments::drill::{DrillOn, DrillResult, DrillRun, DrillSpec, StlDrill};
 use repose_experiments::Spec;
 use std::path::PathBuf;
 
@@ -50,7 +47,7 @@ pub struct DrillArgs {
     #[arg(long, env = "REPOSE_THREADS")]
     pub threads: Option<usize>,
     /// The engine: `cpu` (the reference) or `gpu` (wgpu compute: Vulkan, Metal, DX12; the bed
-    /// is settled there too; JKR cohesion is refused by name). Without a GPU
+    /// is settled there too). Without a GPU
     /// adapter `gpu` is an error, never a fall-back to the CPU.
     #[arg(long, value_enum, default_value = "cpu")]
     pub backend: Backend,
@@ -81,9 +78,6 @@ pub fn run(args: &DrillArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
-    if args.backend == Backend::Gpu {
-        check_backend(BackendKind::Gpu, &spec).context("--backend gpu")?;
-    }
     let gpu = crate::backend::open_gpu(args.backend)?;
     run_on_bed_and_write(
         &DrillOn {

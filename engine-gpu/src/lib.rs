@@ -5,13 +5,12 @@
 //! (particles, materials and their pair table, static and moving triangle meshes, gravity,
 //! domain, integrator) and steps it with the same contact laws — Hertz-Mindlin no-slip with
 //! tangential history, damping and the Coulomb cap; constant-directional-torque rolling
-//! friction as a brake on the new spin, or EPSD's rolling spring; linear (SJKR) cohesion — in
-//! f32. A moving mesh's
-//! motion is evaluated in f64 on the host before each force evaluation (`movers`). Grains can
-//! be inserted between runs of steps into a fixed number of slots
-//! ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this backend does not simulate yet
-//! (JKR cohesion, particle factories as sources of the world) is refused by name,
-//! never approximated.
+//! friction as a brake on the new spin, or EPSD's rolling spring; linear (SJKR) or JKR
+//! cohesion, JKR's necking included — in f32. A moving mesh's motion is evaluated in f64 on the
+//! host before each force evaluation (`movers`). Grains can be inserted between runs of steps
+//! into a fixed number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this
+//! backend does not simulate (a world's own particle sources: its caller serves them) is
+//! refused by name, never approximated.
 //!
 //! **Positions** are integer voxels plus f32 offsets inside the voxel, so the vector between
 //! two nearby particles (and a particle and a triangle's first corner) is exact to the

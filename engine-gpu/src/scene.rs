@@ -171,6 +171,7 @@ pub(crate) struct Params {
 pub(crate) struct PairC {
     pub a: [f32; 4],
     pub b: [f32; 4],
+    pub c: [f32; 4],
 }
 
 /// One triangle. A static one: its first corner as a voxel and an offset, its two edges and
@@ -310,12 +311,22 @@ pub(crate) struct Scene {
     pub movers: Vec<Mover>,
 }
 
-/// The linear (SJKR) cohesion's energy density k, J/m³, for the shader (0: none). JKR is
-/// refused before this is asked.
+/// The linear (SJKR) cohesion's energy density k, J/m³, for the shader (0: none).
 fn linear_cohesion(law: CohesionLaw) -> f32 {
     match law {
         CohesionLaw::Linear { energy_density } => energy_density as f32,
         CohesionLaw::None | CohesionLaw::Jkr { .. } => 0.0,
+    }
+}
+
+/// JKR's surface energy γ (J/m², 0: none) and length 2 π γ / E* (m), for the shader.
+fn jkr_cohesion(law: CohesionLaw) -> [f32; 4] {
+    match law {
+        CohesionLaw::Jkr {
+            surface_energy,
+            length,
+        } => [surface_energy as f32, length as f32, 0.0, 0.0],
+        CohesionLaw::None | CohesionLaw::Linear { .. } => [0.0; 4],
     }
 }
 
@@ -325,14 +336,11 @@ fn v4(v: Vec3, w: f32) -> [f32; 4] {
 
 impl Scene {
     /// The GPU form of `world` now, with room for `capacity` (slots past the world's
-    /// particles are empty). Refuses what this backend does not simulate yet (JKR cohesion,
-    /// particle sources), naming it.
+    /// particles are empty). Refuses what this backend does not simulate yet (particle
+    /// sources), naming it.
     pub fn from_world(world: &World, capacity: Capacity) -> Result<Scene, GpuError> {
         let config = world.config();
         let materials = world.materials();
-        if materials.any_jkr() {
-            return Err(GpuError::Unsupported("JKR cohesion".into()));
-        }
         if world.sources().next().is_some() {
             return Err(GpuError::Unsupported("particle factories (sources)".into()));
         }
@@ -393,6 +401,7 @@ impl Scene {
                         linear_cohesion(c.cohesion),
                         0.0,
                     ],
+                    c: jkr_cohesion(c.cohesion),
                 });
             }
         }

@@ -168,31 +168,3 @@ fn an_stl_drill_is_embedded_in_the_spec_and_checked() {
         stderr(&o)
     );
 }
-
-/// `--backend gpu` refuses what the GPU does not simulate by name, before any adapter is opened
-/// or anything is written (JKR cohesion here; a drill on lavapipe runs in
-/// `experiments`' `drill_gpu` tests).
-#[test]
-fn drill_on_the_gpu_refuses_jkr_cohesion_by_name() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    let o = repose(&[
-        "drill",
-        "--preset",
-        "fast",
-        "--backend",
-        "gpu",
-        "--set",
-        r#"soil_soil.cohesion={"model":"jkr","surface_energy":0.1}"#,
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(!o.status.success());
-    let err = stderr(&o);
-    assert!(
-        err.contains("--backend gpu") && err.contains("JKR"),
-        "{err}"
-    );
-    assert!(!out.exists(), "nothing ran");
-}

@@ -45,6 +45,8 @@ struct PairC {
     a: vec4<f32>,
     // mu_s, mu_r, linear cohesion energy density k (J/m^3, 0: none), 0
     b: vec4<f32>,
+    // JKR cohesion: surface energy gamma (J/m^2, 0: none), 2 pi gamma / E* (m), 0, 0
+    c: vec4<f32>,
 }
 
 // A static triangle in the world frame (its first corner as a voxel and an offset); a moving
@@ -263,8 +265,50 @@ fn epsd_rolling(n: vec3<f32>, w_rel: vec3<f32>, stiffness: f32, mu_r: f32, r_sta
     return out;
 }
 
+// s = sqrt(a / a0) on JKR's stable branch for D = overlap R* / a0^2: the largest root of
+// s^4 - s = D (the CPU engine's `jkr_root`): Newton from 1 + D^(1/4), which decreases onto it.
+fn jkr_root(d: f32) -> f32 {
+    var s = 1.0;
+    if (d > 0.0) {
+        s = 1.0 + sqrt(sqrt(d));
+    }
+    for (var k = 0; k < 40; k++) {
+        let g = s * s * s * s - s - d;
+        let slope = 4.0 * s * s * s - 1.0;
+        if (g <= 0.0 || slope <= 0.0) {
+            break;
+        }
+        let step = g / slope;
+        s -= step;
+        if (step <= 1e-7 * s) {
+            break;
+        }
+    }
+    return s;
+}
+
+// JKR's contact length a0^2 / R* for the pair (a0^3 = 2 pi gamma R*^2 / E*).
+fn jkr_unit(c: PairC, r_star: f32) -> f32 {
+    let a0 = pow(c.c.y * r_star * r_star, 1.0 / 3.0);
+    return a0 * a0 / r_star;
+}
+
+// JKR's attraction at a positive overlap (the CPU engine's `CohesionLaw::attraction`): Hertz's
+// force less JKR's, 2 pi gamma R* (4/3 (D^1.5 - s^6) + 2 s^3).
+fn jkr_attraction(c: PairC, r_star: f32, overlap: f32) -> f32 {
+    let d = overlap / jkr_unit(c, r_star);
+    let s = jkr_root(d);
+    let s3 = s * s * s;
+    return 2.0 * PI * c.c.x * r_star * (4.0 / 3.0 * (d * sqrt(d) - s3 * s3) + 2.0 * s3);
+}
+
+// The separation of a JKR contact, D = -0.4725 (x^1.5 = 1/4).
+const JKR_SEPARATION: f32 = -0.4724704;
+
 struct PairOut {
     touching: bool,
+    // a JKR contact is on (touching, or necking past zero overlap): kept in the spring's w
+    in_contact: bool,
     // force on a (b gets minus it)
     force: vec3<f32>,
     torque_a: vec3<f32>,
@@ -277,7 +321,7 @@ struct PairOut {
 
 // The contact of a and b (a < b), from a's side: both particles call it with the same
 // arguments, so both get the same bits.
-fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>, rolling_in: vec3<f32>) -> PairOut {
+fn pair_contact(a: u32, b: u32, spring_in: vec4<f32>, rolling_in: vec3<f32>) -> PairOut {
     var o: PairOut;
     o.touching = false;
     o.force = vec3<f32>(0.0);
@@ -287,15 +331,32 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>, rolling_in: vec3<f32>) -> 
     o.moment_b = 0.0;
     o.spring = vec3<f32>(0.0);
     o.rolling = vec3<f32>(0.0);
+    o.in_contact = false;
     let d = rel(a, b);
     let ra = off[a].w;
     let rb = off[b].w;
     let rsum = ra + rb;
     let dist2 = dot(d, d);
     if (dist2 >= rsum * rsum) {
+        // A JKR contact outlives zero overlap (necking) until its separation: only JKR's
+        // attraction acts there, no Hertz load, so no friction (the CPU engine's kernel).
+        let c = pair_constants(cell[a].w, cell[b].w);
+        if (c.c.x > 0.0 && spring_in.w != 0.0) {
+            let dist = sqrt(dist2);
+            let r_star = ra * rb / rsum;
+            let dd = (rsum - dist) / jkr_unit(c, r_star);
+            if (dd >= JKR_SEPARATION) {
+                let s3 = pow(jkr_root(dd), 3.0);
+                let pull = 2.0 * PI * c.c.x * r_star * (4.0 / 3.0 * s3 * s3 - 2.0 * s3);
+                o.touching = true;
+                o.in_contact = true;
+                o.force = d * (pull / dist);
+            }
+        }
         return o;
     }
     o.touching = true;
+    o.in_contact = true;
     let dist = sqrt(dist2);
     let n = d * (1.0 / dist);
     let overlap = rsum - dist;
@@ -309,7 +370,7 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>, rolling_in: vec3<f32>) -> 
     let r_star = ra * rb / rsum;
     let m_star = va.w * vb.w / (va.w + vb.w);
     let c = pair_constants(cell[a].w, cell[b].w);
-    let h = hertz_mindlin(c, r_star, m_star, overlap, n, vrel, spring_in);
+    let h = hertz_mindlin(c, r_star, m_star, overlap, n, vrel, spring_in.xyz);
     var force = h.force;
     if (c.b.z > 0.0) {
         // Linear cohesion, k times the area of the circle where the undeformed spheres cut;
@@ -317,6 +378,8 @@ fn pair_contact(a: u32, b: u32, spring_in: vec3<f32>, rolling_in: vec3<f32>) -> 
         let a2 = overlap * (2.0 * ra - overlap) * (2.0 * rb - overlap)
             * (2.0 * rsum - overlap) / (4.0 * dist2);
         force -= n * (c.b.z * PI * a2);
+    } else if (c.c.x > 0.0) {
+        force -= n * jkr_attraction(c, r_star, overlap);
     }
     let n_cross_f = cross(n, force);
     o.force = force;
@@ -652,14 +715,14 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (epsd()) {
             rolling_in = spr[slot(i, CAP + k)].xyz;
         }
-        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)].xyz, rolling_in);
+        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)], rolling_in);
         if (o.touching) {
             f += select(-o.force, o.force, lower);
             tq += select(o.torque_b, o.torque_a, lower);
             moment += select(o.moment_b, o.moment_a, lower);
             touching += 1.0;
         }
-        spr[slot(i, k)] = vec4<f32>(o.spring, 0.0);
+        spr[slot(i, k)] = vec4<f32>(o.spring, select(0.0, 1.0, o.in_contact));
         if (epsd()) {
             spr[slot(i, CAP + k)] = vec4<f32>(o.rolling, 0.0);
         }
@@ -778,6 +841,10 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (c.b.z > 0.0) {
             // Linear cohesion over the circle where the sphere cuts the wall's plane.
             force -= tc.normal * (c.b.z * PI * tc.overlap * (2.0 * ri - tc.overlap));
+        } else if (c.c.x > 0.0) {
+            // JKR against a wall: no necking (a wall contact ends at zero overlap, as on the
+            // CPU).
+            force -= tc.normal * jkr_attraction(c, ri, tc.overlap);
         }
         f += force;
         tq += cross(arm, force);

@@ -5,5 +5,6 @@ mod bed;
 mod common;
 mod epsd;
 mod insertion;
+mod jkr;
 mod moving;
 mod parity;

@@ -56,8 +56,8 @@ pub use measure::{
 pub use picture::{side_view_svg, PictureOptions};
 pub use rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 pub use run::{
-    check_backend, measure_heap, rig_meshes, run_aor, run_aor_on, run_aor_with_checkpoints, Amount,
-    AorError, AorResult, AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus,
+    measure_heap, rig_meshes, run_aor, run_aor_on, run_aor_with_checkpoints, Amount, AorError,
+    AorResult, AorRun, Checkpoints, Control, EndedBy, GrainBudget, Progress, RunStatus,
     SaveCheckpoint, SettleCheck,
 };
 pub use spec::{

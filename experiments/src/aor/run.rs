@@ -27,7 +27,6 @@ use super::picture::{side_view_svg, PictureOptions};
 use super::rest::{rest_decision, rest_state, NotYet, RestDecision, RestState};
 use super::spec::{AorSpec, Protocol, SpecError};
 use crate::backend::{steps_until, Backend, BackendError, BackendKind, Engine, Grains};
-use crate::soil::unsupported_on_gpu;
 // The progress callback's types (phases here: `filling`, `lifting`, `settling`, `measuring`;
 // filling is the first half of the fraction, settling the second).
 pub use crate::progress::{Control, Progress};
@@ -582,32 +581,14 @@ pub fn run_aor_with_checkpoints(
     run_aor_on(Engine::Cpu, spec, progress, checkpoints)
 }
 
-/// Ok if the `kind` backend runs `spec`; else the error [`run_aor_on`] would give: the GPU
-/// backend does not simulate JKR cohesion (linear cohesion it does). Every
-/// refusal names the spec's field. A caller may ask before it opens a GPU (a job server asks at
-/// submission).
-pub fn check_backend(kind: BackendKind, spec: &AorSpec) -> Result<(), AorError> {
-    spec.validate()?;
-    if kind != BackendKind::Gpu {
-        return Ok(());
-    }
-    match unsupported_on_gpu(&spec.soil_soil, &spec.soil_steel) {
-        None => Ok(()),
-        Some(what) => Err(AorError::Backend(BackendError::Unsupported {
-            backend: kind.label(),
-            what,
-        })),
-    }
-}
-
 /// [`run_aor_with_checkpoints`] on `engine`: the same rig, run loop, rest rule and
 /// measurement on any backend ([`crate::backend`]); the result names the engine
 /// (`engine_version`). On the CPU it is [`run_aor_with_checkpoints`], bit for bit.
 ///
-/// The GPU backend runs both protocols (the factory is served from the host, see
-/// [`crate::backend::GpuBackend`]; the lifted tube is a moving geometry) and refuses by name
-/// what it does not simulate: JKR cohesion, and checkpoints (a GPU run is not
-/// continued from a saved state: `checkpoints` must be the default).
+/// The GPU backend runs both protocols with every contact law (the factory is served from the
+/// host, see [`crate::backend::GpuBackend`]; the lifted tube is a moving geometry) and refuses
+/// checkpoints by name (a GPU run is not continued from a saved state: `checkpoints` must be
+/// the default).
 pub fn run_aor_on(
     engine: Engine<'_>,
     spec: &AorSpec,
@@ -616,7 +597,7 @@ pub fn run_aor_on(
 ) -> Result<AorRun, AorError> {
     let started = Instant::now();
     let g = 9.81;
-    check_backend(engine.kind(), spec)?;
+    spec.validate()?;
     if engine.kind() != BackendKind::Cpu
         && (checkpoints.resume.is_some() || checkpoints.save.is_some())
     {

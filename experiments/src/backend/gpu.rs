@@ -181,9 +181,8 @@ fn minimum_image(domain: &Domain, mut d: Vec3) -> Vec3 {
 }
 
 impl GpuBackend {
-    /// Uploads `world` to `gpu` and serves its sources for the first step. Errors: what the
-    /// GPU backend does not simulate (JKR cohesion, EPSD rolling), named; a scene that does not
-    /// fit the adapter.
+    /// Uploads `world` to `gpu` and serves its sources for the first step. Errors: a scene that
+    /// does not fit the adapter (its capacities, its limits).
     pub fn new(gpu: &Gpu, mut world: World) -> Result<GpuBackend, BackendError> {
         let sources = world.take_sources();
         let rng = world.rng().clone();

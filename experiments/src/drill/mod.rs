@@ -29,8 +29,8 @@ pub use experiment::Drill;
 pub use measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 pub use picture::{forces_svg, section_svg};
 pub use run::{
-    check_backend, run_drill, run_drill_on_bed, DrillError, DrillOn, DrillResult, DrillRun,
-    DrillStatus, LoadSample, Progress,
+    run_drill, run_drill_on_bed, DrillError, DrillOn, DrillResult, DrillRun, DrillStatus,
+    LoadSample, Progress,
 };
 pub use spec::{
     AugerGeometry, DrillMeasureSettings, DrillMotionSpec, DrillSpec, SpecError, StlDrill, PRESETS,

@@ -18,9 +18,8 @@ use serde::{Deserialize, Serialize};
 use super::measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
-use crate::backend::{steps_until, BackendError, BackendKind, Engine, Grains};
+use crate::backend::{steps_until, BackendError, Engine, Grains};
 pub use crate::progress::{Control, Progress};
-use crate::soil::unsupported_on_gpu;
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
     BedError, BedInfo, BedMismatch, HeightField, NoBedStore, OnBed, SettledBed, SettledBy,
@@ -296,23 +295,6 @@ pub fn run_drill_on_bed(
     DrillOn::cpu(spec).run_on_bed(bed, progress)
 }
 
-/// Ok if the `kind` backend runs `spec`; else the error a run would give: the GPU backend does
-/// not simulate JKR cohesion, each refusal naming the spec's field. A caller may
-/// ask before it opens a GPU (a job server asks at submission).
-pub fn check_backend(kind: BackendKind, spec: &DrillSpec) -> Result<(), DrillError> {
-    spec.validate()?;
-    if kind != BackendKind::Gpu {
-        return Ok(());
-    }
-    match unsupported_on_gpu(&spec.soil_soil, &spec.soil_steel) {
-        None => Ok(()),
-        Some(what) => Err(DrillError::Backend(BackendError::Unsupported {
-            backend: kind.label(),
-            what,
-        })),
-    }
-}
-
 /// A drilling spec on an engine: its bed is settled and drilled there. The bed's key names the
 /// engine ([`BedRecipe::key_on`](crate::soil::BedRecipe::key_on)), so a run never takes a
 /// bed another engine settled.
@@ -345,7 +327,6 @@ impl OnBed for DrillOn<'_> {
         &self,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<SettledBed, DrillError> {
-        check_backend(self.engine.kind(), self.spec)?;
         Ok(self.spec.bed_recipe().build_on(self.engine, &mut |p| {
             progress(Progress {
                 fraction: p.fraction,
@@ -361,7 +342,6 @@ impl OnBed for DrillOn<'_> {
         bed: SettledBed,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<DrillRun, DrillError> {
-        check_backend(self.engine.kind(), self.spec)?;
         drill(self.engine, self.spec, bed, progress)
     }
 

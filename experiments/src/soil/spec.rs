@@ -12,19 +12,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::spec_path::{invalid, SpecError};
 
-/// What the GPU engine does not simulate among a spec's contact settings, naming the spec's
-/// field: JKR cohesion (`soil_soil.cohesion`, `soil_steel.cohesion`); none if it simulates them
-/// all (both rolling models and linear cohesion it does).
-pub(crate) fn unsupported_on_gpu(
-    soil_soil: &Interaction,
-    soil_steel: &Interaction,
-) -> Option<String> {
-    [("soil_soil", soil_soil), ("soil_steel", soil_steel)]
-        .into_iter()
-        .find(|(_, pair)| matches!(pair.cohesion, Cohesion::Jkr { .. }))
-        .map(|(pair, _)| format!("JKR cohesion (`{pair}.cohesion`)"))
-}
-
 /// Rolling-resistance model (see [`repose_engine::contact::RollingModel`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

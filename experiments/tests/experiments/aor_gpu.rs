@@ -8,10 +8,9 @@
 //! seeds, not to the bit.
 
 use repose_experiments::aor::{
-    check_backend, run_aor_on, AorError, AorResult, AorRun, AorSpec, Checkpoints, Control,
-    RunStatus,
+    run_aor_on, AorError, AorResult, AorRun, AorSpec, Checkpoints, Control, RunStatus,
 };
-use repose_experiments::backend::{BackendError, BackendKind, Engine};
+use repose_experiments::backend::{BackendError, Engine};
 use repose_experiments::Spec;
 
 use crate::gpu_common::gpu;
@@ -255,52 +254,30 @@ fn a_gpu_funnel_run_twice_is_bit_identical() {
     heap_angle(&spec, &a.result);
 }
 
+/// The GPU runs every `aor` spec (either protocol, every contact law) but refuses checkpoints
+/// by name: a GPU run cannot be continued from a saved state.
 #[test]
-fn the_gpu_backend_refuses_what_it_does_not_simulate_by_name() {
-    // JKR cohesion: refused before any GPU is opened.
-    let mut jkr = small();
-    jkr.set(
-        "soil_steel.cohesion",
-        r#"{"model": "jkr", "surface_energy": 0.1}"#,
-    )
-    .unwrap();
-    let refusal = check_backend(BackendKind::Gpu, &jkr).unwrap_err();
-    assert!(
-        matches!(
-            &refusal,
-            AorError::Backend(BackendError::Unsupported { backend: "GPU", .. })
-        ),
-        "{refusal:?}"
-    );
-    assert!(
-        refusal.to_string().contains("soil_steel.cohesion"),
-        "{refusal}"
-    );
-    check_backend(BackendKind::Cpu, &jkr).unwrap();
-    check_backend(BackendKind::Gpu, &small()).unwrap();
-    check_backend(BackendKind::Gpu, &small_lifted()).unwrap();
-
+fn the_gpu_backend_refuses_checkpoints_by_name() {
     let Some(gpu) = gpu() else { return };
-    let refused = |spec: &AorSpec, checkpoints: Checkpoints<'_>| {
-        run_aor_on(
-            Engine::Gpu(&gpu),
-            spec,
-            &mut |_| Control::Continue,
-            checkpoints,
-        )
-        .unwrap_err()
-        .to_string()
-    };
-    assert_eq!(refused(&jkr, Checkpoints::default()), refusal.to_string());
     let mut keep = |_: &[u8]| {};
-    let message = refused(
+    let message = run_aor_on(
+        Engine::Gpu(&gpu),
         &small(),
+        &mut |_| Control::Continue,
         Checkpoints {
             save: Some(&mut keep),
             ..Checkpoints::default()
         },
+    )
+    .unwrap_err();
+    assert!(
+        matches!(
+            &message,
+            AorError::Backend(BackendError::Unsupported { backend: "GPU", .. })
+        ),
+        "{message:?}"
     );
-    assert!(message.contains("checkpoints"), "{message}");
+    assert!(message.to_string().contains("checkpoints"), "{message}");
 }
 
 /// Issue 38's acceptance check: the `fast` funnel (about 1 380 grains of 2.5 mm), seeds 1-5 on

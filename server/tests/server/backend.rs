@@ -64,25 +64,6 @@ async fn a_backend_the_experiment_cannot_run_on_is_a_422_naming_experiment_backe
     drill["response"] = json!("opening_diameter_mm");
     let (status, body) = server.post("/v1/batches", &drill).await;
     assert_eq!(status, StatusCode::CREATED, "drill on the GPU: {body}");
-    drill["experiment"]["spec"] = json!({"rolling_model": "epsd"});
-    let (status, body) = server.post("/v1/batches", &drill).await;
-    assert_eq!(
-        status,
-        StatusCode::CREATED,
-        "a drill with EPSD on the GPU: {body}"
-    );
-    drill["experiment"]["spec"] =
-        json!({"soil_soil": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}});
-    let (status, body) = server.post("/v1/batches", &drill).await;
-    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
-    refused(&body, "a drill with JKR cohesion on the GPU");
-    assert!(
-        body["error"]
-            .as_str()
-            .unwrap()
-            .contains("soil_soil.cohesion"),
-        "{body}"
-    );
     // No such backend: the JSON itself is refused, at the same field.
     let (status, body) = server
         .post("/v1/batches", &lookup_batch(json!({"backend": "tpu"})))
@@ -90,34 +71,33 @@ async fn a_backend_the_experiment_cannot_run_on_is_a_422_naming_experiment_backe
     assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
     refused(&body, "an unknown backend");
     assert!(body["error"].as_str().unwrap().contains("tpu"), "{body}");
-    // An `aor` spec the GPU does not simulate, naming the spec's field.
-    for (spec, names) in [(
-        json!({"soil_soil": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
-        "soil_soil.cohesion",
-    )] {
+    // Every `aor` and `drill` spec runs on the GPU: the lifted cylinder (a moving tube), EPSD
+    // rolling, JKR cohesion.
+    for (kind, spec) in [
+        ("aor", json!({"protocol": "lifted_cylinder"})),
+        ("aor", json!({"rolling_model": "epsd"})),
+        (
+            "aor",
+            json!({"soil_soil": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
+        ),
+        (
+            "drill",
+            json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
+        ),
+    ] {
         let mut request = aor_batch("gpu");
+        request["experiment"] = json!({"kind": kind, "preset": "fast", "backend": "gpu"});
         request["experiment"]["spec"] = spec.clone();
+        if kind == "drill" {
+            request["response"] = json!("opening_diameter_mm");
+        }
         let (status, body) = server.post("/v1/batches", &request).await;
-        assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{spec}: {body}");
-        refused(&body, names);
-        assert!(
-            body["error"].as_str().unwrap().contains(names),
-            "{spec}: {body}"
+        assert_eq!(
+            status,
+            StatusCode::CREATED,
+            "{kind} {spec} on the GPU: {body}"
         );
-        // The same spec on the CPU is accepted.
-        request["experiment"]["backend"] = json!("cpu");
-        let (status, body) = server.post("/v1/batches", &request).await;
-        assert_eq!(status, StatusCode::CREATED, "{spec} on the CPU: {body}");
     }
-    // The lifted cylinder (a moving tube) runs on the GPU.
-    let mut lifted = aor_batch("gpu");
-    lifted["experiment"]["spec"] = json!({"protocol": "lifted_cylinder"});
-    let (status, body) = server.post("/v1/batches", &lifted).await;
-    assert_eq!(
-        status,
-        StatusCode::CREATED,
-        "the lifted cylinder on the GPU: {body}"
-    );
     // A campaign's experiment is checked the same way.
     let mut campaign = paper::paper_campaign_json("gpu lookup campaign");
     campaign["experiment"]["backend"] = json!("gpu");
