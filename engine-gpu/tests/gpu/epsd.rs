@@ -3,7 +3,9 @@
 //! rolling sphere stops) and a small pile against the CPU engine.
 
 use crate::common;
-use crate::parity::{ball, plane, resting_overlap, table, BALL, WALL};
+use crate::parity::{
+    ball, deceleration_from_50_to_300_ms, plane, resting_overlap, table, BALL, WALL,
+};
 
 use repose_engine::contact::RollingModel;
 use repose_engine::integrate::Integrator;
@@ -56,12 +58,7 @@ fn epsd_rolling_decelerates_at_five_sevenths_mu_r_g_once_plastic() {
         Vec3::new(v0, 0.0, 0.0),
         Vec3::new(0.0, v0 / R, 0.0),
     );
-    let mut world = on_gpu(&gpu, &scene);
-    world.run_until(0.05).unwrap();
-    let (t1, v1) = (world.time(), world.particles().unwrap().velocity[0].x);
-    world.run_until(0.3).unwrap();
-    let (t2, v2) = (world.time(), world.particles().unwrap().velocity[0].x);
-    let measured = (v2 - v1) / (t2 - t1);
+    let measured = deceleration_from_50_to_300_ms(&mut on_gpu(&gpu, &scene));
     let expected = -5.0 / 7.0 * mu_r * 9.81;
     println!("EPSD deceleration {measured:.5} m/s² (theory {expected:.5})");
     assert!((measured / expected - 1.0).abs() < 0.02);

@@ -3,7 +3,8 @@
 
 use crate::common;
 use crate::parity::{
-    ball, e_star_wall, hertz, mass, plane, resting_overlap, run_until, table, world, BALL, WALL,
+    ball, e_star_wall, hertz, mass, plane, resting_overlap, table, when_slip_ends, world, BALL,
+    WALL,
 };
 
 use repose_engine::integrate::Integrator;
@@ -90,19 +91,7 @@ fn a_sphere_set_down_on_a_moving_belt_rolls_at_two_sevenths_of_its_speed() {
         (p.velocity[0] + p.angular_velocity[0].cross(&Vec3::new(0.0, 0.0, -R))).x - u
     };
     let expected_time = 2.0 * u / (7.0 * mu * g);
-    let mut previous = (0.0, -u);
-    let mut crossing = None;
-    run_until(&mut world, 10, 1_000_000, |p, t| {
-        let s = slip(p);
-        if s > -1e-3 * u {
-            let (t0, s0) = previous;
-            crossing = Some((t0 + (t - t0) * s0 / (s0 - s), p.velocity[0].x));
-            return true;
-        }
-        previous = (t, s);
-        false
-    });
-    let (t, v) = crossing.unwrap();
+    let (t, v) = when_slip_ends(&mut world, -u, slip);
     println!(
         "belt: rolling at {t:.5} s (theory {expected_time:.5}), v {v:.5} (theory {:.5})",
         2.0 / 7.0 * u

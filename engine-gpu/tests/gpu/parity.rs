@@ -368,11 +368,27 @@ fn a_sliding_sphere_reaches_pure_rolling_at_five_sevenths_of_its_launch_speed() 
         (p.velocity[0] + p.angular_velocity[0].cross(&Vec3::new(0.0, 0.0, -r))).x
     };
     let expected_time = 2.0 * v0 / (7.0 * mu * g);
-    let mut previous = (0.0, v0);
+    let (t, v) = when_slip_ends(&mut world, v0, slip);
+    println!(
+        "pure rolling at {t:.5} s (theory {expected_time:.5}), v {v:.5} (theory {:.5})",
+        5.0 / 7.0 * v0
+    );
+    assert!((t / expected_time - 1.0).abs() < 0.02);
+    assert!((v / (5.0 / 7.0 * v0) - 1.0).abs() < 0.02);
+}
+
+/// The time (interpolated between blocks of 10 steps) at which `slip`, starting at
+/// `initial`, has come within a thousandth of it to zero, and the grain's x velocity then.
+pub(crate) fn when_slip_ends(
+    world: &mut GpuWorld,
+    initial: f64,
+    slip: impl Fn(&repose_engine_gpu::GpuParticles) -> f64,
+) -> (f64, f64) {
+    let mut previous = (0.0, initial);
     let mut crossing = None;
-    run_until(&mut world, 10, 1_000_000, |p, t| {
+    run_until(world, 10, 1_000_000, |p, t| {
         let s = slip(p);
-        if s < 1e-3 * v0 {
+        if s.abs() < 1e-3 * initial.abs() || s * initial < 0.0 {
             let (t0, s0) = previous;
             crossing = Some((t0 + (t - t0) * s0 / (s0 - s), p.velocity[0].x));
             return true;
@@ -380,13 +396,16 @@ fn a_sliding_sphere_reaches_pure_rolling_at_five_sevenths_of_its_launch_speed() 
         previous = (t, s);
         false
     });
-    let (t, v) = crossing.unwrap();
-    println!(
-        "pure rolling at {t:.5} s (theory {expected_time:.5}), v {v:.5} (theory {:.5})",
-        5.0 / 7.0 * v0
-    );
-    assert!((t / expected_time - 1.0).abs() < 0.02);
-    assert!((v / (5.0 / 7.0 * v0) - 1.0).abs() < 0.02);
+    crossing.unwrap()
+}
+
+/// Grain 0's mean x acceleration from 0.05 s to 0.3 s, m/s².
+pub(crate) fn deceleration_from_50_to_300_ms(world: &mut GpuWorld) -> f64 {
+    world.run_until(0.05).unwrap();
+    let (t1, v1) = (world.time(), world.particles().unwrap().velocity[0].x);
+    world.run_until(0.3).unwrap();
+    let (t2, v2) = (world.time(), world.particles().unwrap().velocity[0].x);
+    (v2 - v1) / (t2 - t1)
 }
 
 #[test]
@@ -400,11 +419,7 @@ fn cdt_rolling_friction_decelerates_at_five_sevenths_mu_r_g() {
         Vec3::new(v0, 0.0, 0.0),
         Vec3::new(0.0, v0 / r, 0.0),
     );
-    world.run_until(0.05).unwrap();
-    let (t1, v1) = (world.time(), world.particles().unwrap().velocity[0].x);
-    world.run_until(0.3).unwrap();
-    let (t2, v2) = (world.time(), world.particles().unwrap().velocity[0].x);
-    let measured = (v2 - v1) / (t2 - t1);
+    let measured = deceleration_from_50_to_300_ms(&mut world);
     let expected = -5.0 / 7.0 * mu_r * 9.81;
     println!("CDT deceleration {measured:.5} m/s² (theory {expected:.5})");
     assert!((measured / expected - 1.0).abs() < 0.02);

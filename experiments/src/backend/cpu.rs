@@ -45,15 +45,7 @@ impl Backend for CpuBackend {
     }
 
     fn grains(&mut self) -> Result<Grains<'_>, BackendError> {
-        let p = self.world.particles();
-        Ok(Grains {
-            position: &p.position,
-            velocity: &p.velocity,
-            angular_velocity: &p.angular_velocity,
-            radius: &p.radius,
-            mass: &p.mass,
-            inverse_inertia: &p.inverse_inertia,
-        })
+        Ok(Grains::of(&self.world))
     }
 
     fn grain_count(&mut self) -> Result<usize, BackendError> {

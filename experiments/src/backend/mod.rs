@@ -94,6 +94,19 @@ pub struct Grains<'a> {
 }
 
 impl Grains<'_> {
+    /// A CPU world's grains, as its backend hands them out.
+    pub fn of(world: &World) -> Grains<'_> {
+        let p = world.particles();
+        Grains {
+            position: &p.position,
+            velocity: &p.velocity,
+            angular_velocity: &p.angular_velocity,
+            radius: &p.radius,
+            mass: &p.mass,
+            inverse_inertia: &p.inverse_inertia,
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.position.len()
     }

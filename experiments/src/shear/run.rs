@@ -37,10 +37,11 @@ use super::measure::{
 use super::picture::{curves_svg, strength_svg};
 use super::spec::{ShearSpec, SpecError};
 use super::window::{PlaneStress, Window};
+use crate::backend::Grains;
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
-    grains_of, kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore,
-    OnBed, SettledBed, Setup,
+    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, OnBed,
+    SettledBed, Setup,
 };
 
 /// Why a run could not start or was stopped before it could report (a finished run whose
@@ -722,7 +723,7 @@ fn run_stage(
         set_motion(&mut world, lid, Vec3::new(0.0, 0.0, lid_speed(force)))?;
     };
     let consolidation_time = world.time();
-    let kinetic_energy_ratio = kinetic_energy_ratio(&grains_of(&world));
+    let kinetic_energy_ratio = kinetic_energy_ratio(&Grains::of(&world));
 
     // Shearing: the upper half and the lid move along +x; the lid keeps the stress.
     let p = world.particles();

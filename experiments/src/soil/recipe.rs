@@ -392,19 +392,6 @@ pub(crate) fn kinetic_energy_ratio(p: &Grains<'_>) -> f64 {
     p.kinetic_energy() / n / (mean_mass * 9.81 * mean_d)
 }
 
-/// The grains of a CPU world, as a backend hands them out.
-pub(crate) fn grains_of(world: &World) -> Grains<'_> {
-    let p = world.particles();
-    Grains {
-        position: &p.position,
-        velocity: &p.velocity,
-        angular_velocity: &p.angular_velocity,
-        radius: &p.radius,
-        mass: &p.mass,
-        inverse_inertia: &p.inverse_inertia,
-    }
-}
-
 /// True if the last `window` values lie within `tolerance_diameters × d` of each other.
 pub(crate) fn is_stable(values: &[f64], settle: &SettleSpec, d: f64) -> bool {
     let window = settle.stable_window;
