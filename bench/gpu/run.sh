@@ -10,14 +10,19 @@
 # REPOSE: a release build (strip it to carry it: CARGO_PROFILE_RELEASE_DEBUG=0
 # CARGO_PROFILE_RELEASE_STRIP=symbols cargo build --release -p repose). SEEDS: fast seeds
 # (default 12). CPU_SEEDS: also pour the fast seeds on the CPU engine, all at once, one thread
-# each (default 1). BENCH: run the engine benchmark first (default 1). BUDGET_S: the seconds the
-# whole script may take; `fine` gets what is left. Every figure is printed; the runs' result.json
-# files are under $WORK (default /tmp/repose-gpu).
+# each (default 1). BENCH: run the engine benchmark first (default 1). TESTS: a test binary of
+# the GPU crate to run first, one test at a time under a limit (the analytic checks on this
+# adapter; build it with `cargo test --release -p repose-engine-gpu --test gpu --no-run` and
+# strip it). DRILL: drill the `fast` bed on the GPU after the benchmark (default 1). BUDGET_S:
+# the seconds the whole script may take; `fine` gets what is left. Every figure is printed; the
+# runs' result.json files are under $WORK (default /tmp/repose-gpu).
 set -u
 REPOSE=${REPOSE:-repose}
 SEEDS=${SEEDS:-12}
 CPU_SEEDS=${CPU_SEEDS:-1}
 BENCH=${BENCH:-1}
+TESTS=${TESTS:-}
+DRILL=${DRILL:-1}
 BUDGET_S=${BUDGET_S:-560}
 WORK=${WORK:-/tmp/repose-gpu}
 T0=$(date +%s)
@@ -40,6 +45,11 @@ PY
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/dev/null
 lscpu | grep -E "Model name" | head -1
 echo "cores: $(nproc)"
+if [ -n "$TESTS" ]; then
+    stamp "the GPU crate's tests on this adapter"
+    REPOSE_REQUIRE_GPU=1 timeout -s KILL 120 "$TESTS" --test-threads 1 --nocapture 2>&1 |
+        grep -E "^test |test result|panicked|GPU:|theory|CPU law|CPU |error" | head -80
+fi
 if [ "$BENCH" = 1 ]; then
     B="timeout -s KILL"
     stamp "engine benchmark, 20 k"
@@ -48,6 +58,11 @@ if [ "$BENCH" = 1 ]; then
     $B 90 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 200000 --steps 2000 --cpu-steps 40
     stamp "engine benchmark, 2 M"
     $B 150 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 2000000 --steps 500 --cpu-steps 10
+fi
+if [ "$DRILL" = 1 ]; then
+    stamp "fast drill on the GPU (bed and drilling), alone"
+    timeout -s KILL 60 "$REPOSE" drill --backend gpu --preset fast --out "$WORK/gpu-drill" --quiet >/dev/null 2>&1
+    python3 -c "import json; d = json.load(open('$WORK/gpu-drill/result.json')); print({k: d.get(k) for k in ['status', 'opening_diameter_mm', 'effective_depth_mm', 'mean_feed_torque_nm', 'energy_j', 'steps', 'wall_time_s', 'engine_version']}, 'bed', d['bed']['wall_time_s'])" 2>&1
 fi
 stamp "fast funnel on the GPU, seeds 1-$SEEDS, one at a time"
 for s in $(seq 1 "$SEEDS"); do
