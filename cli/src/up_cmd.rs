@@ -79,7 +79,8 @@ pub struct UpArgs {
     #[arg(long)]
     pub gpu: bool,
     /// A run that reports no progress for SECONDS is stuck (a thread hung in a GPU driver): its
-    /// job goes back to the queue for the other local workers and its worker stops. 0: never.
+    /// job goes back to the queue and its local worker starts again (the stuck thread is left
+    /// behind). 0: never.
     #[arg(long, value_name = "SECONDS", default_value_t = 900.0)]
     pub stall_timeout: f64,
 }
@@ -217,10 +218,26 @@ async fn up(config: UpConfig) -> Result<()> {
         worker.checkpoint_every = config.checkpoint_every;
         worker.gpu = config.gpu.clone();
         worker.stall_timeout = config.stall_timeout;
-        let mut stopped = workers_stopped.clone();
-        workers.push(tokio::spawn(repose_worker::run(worker, async move {
-            let _ = stopped.wait_for(|s| *s).await;
-        })));
+        let stopped = workers_stopped.clone();
+        workers.push(tokio::spawn(async move {
+            // A local worker whose run stalled (its thread is stuck for good) has handed the
+            // job back and stopped: start it again, as a service manager would.
+            loop {
+                let mut stop = stopped.clone();
+                let outcome = repose_worker::run(worker.clone(), async move {
+                    let _ = stop.wait_for(|s| *s).await;
+                })
+                .await;
+                match outcome {
+                    Err(stalled @ repose_worker::WorkerError::Stalled { .. })
+                        if !*stopped.borrow() =>
+                    {
+                        eprintln!("local worker {index}: {stalled}; starting it again");
+                    }
+                    other => return other,
+                }
+            }
+        }));
     }
     // stdout: where things are, in a form a shell can use.
     println!(

@@ -427,6 +427,54 @@ fn a_worker_whose_run_stalls_hands_the_job_back_and_exits_for_a_restart() {
     assert_eq!(status["state"], "completed", "{status}");
 }
 
+/// `repose up` whose only local worker's run stalls: the worker hands the job back and starts
+/// again, so the job is tried until its attempts run out and the batch ends (its run dead,
+/// naming the stall) instead of waiting for ever; `--exit-when-done` then exits.
+#[test]
+fn repose_up_starts_a_stalled_local_worker_again_and_the_batch_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut stuck = replay_batch(2, 0.0);
+    stuck["experiment"]["spec"]["stall_s"] = serde_json::json!(120.0);
+    let batch_file = dir.path().join("stuck.json");
+    std::fs::write(&batch_file, stuck.to_string()).unwrap();
+    let (out_path, err_path) = (dir.path().join("out.txt"), dir.path().join("err.txt"));
+    let mut up = up_command(&dir.path().join("up.db"), 1)
+        .args([
+            "--stall-timeout",
+            "1",
+            "--max-attempts",
+            "2",
+            "--exit-when-done",
+        ])
+        .arg("--submit")
+        .arg(&batch_file)
+        .stdout(std::fs::File::create(&out_path).unwrap())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .unwrap();
+    let read = |path: &std::path::Path| std::fs::read_to_string(path).unwrap_or_default();
+    // Two runs, two attempts each, a second a stall and 5 s before the retry.
+    let deadline = std::time::Instant::now() + Duration::from_secs(90);
+    while up.try_wait().unwrap().is_none() {
+        if std::time::Instant::now() > deadline {
+            up.kill().unwrap();
+            up.wait().unwrap();
+            panic!(
+                "repose up still waiting after 90 s\n{}\n{}",
+                read(&out_path),
+                read(&err_path)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (stdout, stderr) = (read(&out_path), read(&err_path));
+    assert!(
+        stderr.contains("starting it again"),
+        "the worker restarted: {stdout}\n{stderr}"
+    );
+    assert!(stderr.contains("no progress for"), "{stderr}");
+}
+
 /// `repose up` on `db` with `workers` local workers on any free port; the caller adds the rest.
 fn up_command(db: &std::path::Path, workers: usize) -> std::process::Command {
     let mut command = std::process::Command::new(common::repose_bin());
