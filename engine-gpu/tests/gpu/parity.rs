@@ -399,11 +399,11 @@ pub(crate) fn when_slip_ends(
     crossing.unwrap()
 }
 
-/// Grain 0's mean x acceleration from 0.05 s to 0.3 s, m/s².
-pub(crate) fn deceleration_from_50_to_300_ms(world: &mut GpuWorld) -> f64 {
+/// Grain 0's mean x acceleration from 0.05 s to 0.2 s, m/s².
+pub(crate) fn deceleration_from_50_to_200_ms(world: &mut GpuWorld) -> f64 {
     world.run_until(0.05).unwrap();
     let (t1, v1) = (world.time(), world.particles().unwrap().velocity[0].x);
-    world.run_until(0.3).unwrap();
+    world.run_until(0.2).unwrap();
     let (t2, v2) = (world.time(), world.particles().unwrap().velocity[0].x);
     (v2 - v1) / (t2 - t1)
 }
@@ -419,7 +419,7 @@ fn cdt_rolling_friction_decelerates_at_five_sevenths_mu_r_g() {
         Vec3::new(v0, 0.0, 0.0),
         Vec3::new(0.0, v0 / r, 0.0),
     );
-    let measured = deceleration_from_50_to_300_ms(&mut world);
+    let measured = deceleration_from_50_to_200_ms(&mut world);
     let expected = -5.0 / 7.0 * mu_r * 9.81;
     println!("CDT deceleration {measured:.5} m/s² (theory {expected:.5})");
     assert!((measured / expected - 1.0).abs() < 0.02);
