@@ -452,27 +452,41 @@ fn repose_up_starts_a_stalled_local_worker_again_and_the_batch_ends() {
         .stderr(std::fs::File::create(&err_path).unwrap())
         .spawn()
         .unwrap();
-    let read = |path: &std::path::Path| std::fs::read_to_string(path).unwrap_or_default();
     // Two runs, two attempts each, a second a stall and 5 s before the retry.
-    let deadline = std::time::Instant::now() + Duration::from_secs(90);
-    while up.try_wait().unwrap().is_none() {
-        if std::time::Instant::now() > deadline {
-            up.kill().unwrap();
-            up.wait().unwrap();
-            panic!(
-                "repose up still waiting after 90 s\n{}\n{}",
-                read(&out_path),
-                read(&err_path)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    let (stdout, stderr) = (read(&out_path), read(&err_path));
+    let (_, stdout, stderr) = exit_within(&mut up, 90, "repose up", &out_path, &err_path);
     assert!(
         stderr.contains("starting it again"),
         "the worker restarted: {stdout}\n{stderr}"
     );
     assert!(stderr.contains("no progress for"), "{stderr}");
+}
+
+/// Waits at most `seconds` for `child` to exit (else kills it and fails, saying `waiting_on`);
+/// its exit status and what it wrote to `out` and `err`.
+fn exit_within(
+    child: &mut std::process::Child,
+    seconds: u64,
+    waiting_on: &str,
+    out: &std::path::Path,
+    err: &std::path::Path,
+) -> (std::process::ExitStatus, String, String) {
+    let read = |path: &std::path::Path| std::fs::read_to_string(path).unwrap_or_default();
+    let deadline = std::time::Instant::now() + Duration::from_secs(seconds);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return (status, read(out), read(err));
+        }
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!(
+                "still waiting after {seconds} s: {waiting_on}\n{}\n{}",
+                read(out),
+                read(err)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 /// `repose up` on `db` with `workers` local workers on any free port; the caller adds the rest.
@@ -598,24 +612,15 @@ fn kill_repose_up_holding_jobs_and_restart(before: usize, after: usize) -> Strin
         .stderr(std::fs::File::create(&err_path).unwrap())
         .spawn()
         .unwrap();
-    let read = |path: &std::path::Path| std::fs::read_to_string(path).unwrap_or_default();
     // Three runs of 2 s: far less than this unless a job waits out its lease.
-    let deadline = std::time::Instant::now() + Duration::from_secs(120);
-    while second.try_wait().unwrap().is_none() {
-        if std::time::Instant::now() > deadline {
-            second.kill().unwrap();
-            second.wait().unwrap();
-            panic!(
-                "still waiting after 120 s: a job held by the killed workers waits out its lease\n{}\n{}",
-                read(&out_path),
-                read(&err_path)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    let status = second.wait().unwrap();
-    let stdout = read(&out_path);
-    assert!(status.success(), "{stdout}\n{}", read(&err_path));
+    let (status, stdout, stderr) = exit_within(
+        &mut second,
+        120,
+        "a job held by the killed workers waits out its lease",
+        &out_path,
+        &err_path,
+    );
+    assert!(status.success(), "{stdout}\n{stderr}");
     assert!(
         stdout.contains("following 1 unfinished batch(es)"),
         "{stdout}"
