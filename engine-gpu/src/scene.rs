@@ -165,6 +165,14 @@ pub(crate) struct Params {
     pub movers: [u32; 4],
 }
 
+impl Params {
+    /// EPSD rolling (a rolling spring per contact) rather than CDT's brake: the shader's
+    /// `epsd()`.
+    pub fn epsd(&self) -> bool {
+        self.misc2[1] == 0.0
+    }
+}
+
 /// One material pair's contact constants.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]

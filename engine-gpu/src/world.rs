@@ -173,7 +173,7 @@ impl GpuWorld {
         let n = scene.cell.len();
         let limits = gpu.limits();
         // EPSD keeps a rolling spring after each tangential one (the shader's `epsd()`).
-        let springs: u64 = if scene.params.misc2[1] == 0.0 { 2 } else { 1 };
+        let springs: u64 = if scene.params.epsd() { 2 } else { 1 };
         let largest = (n * NEIGHBOUR_CAPACITY * 16 * springs as usize)
             .max(scene.grid.cells() * BIN_CAPACITY * 4)
             .max(scene.tri_grid.len() * 4) as u64;

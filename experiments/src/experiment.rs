@@ -110,12 +110,17 @@ pub trait Experiment {
         checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError>;
 
+    /// Whether the GPU engine runs every spec of this kind. A kind that says so overrides
+    /// [`Experiment::run_on`].
+    const RUNS_ON_GPU: bool = false;
+
     /// Ok if the `backend` engine runs `spec`; else why not, naming what it does not simulate
-    /// ([`ExperimentError::Unsupported`]). The default: the CPU engine only. A kind that
-    /// overrides it overrides [`Experiment::run_on`] with it.
+    /// ([`ExperimentError::Unsupported`]). The default: the CPU engine, and the GPU's for a
+    /// kind that [runs on it](Experiment::RUNS_ON_GPU).
     fn check_backend(_spec: &Self::Spec, backend: BackendKind) -> Result<(), ExperimentError> {
         match backend {
             BackendKind::Cpu => Ok(()),
+            BackendKind::Gpu if Self::RUNS_ON_GPU => Ok(()),
             other => Err(ExperimentError::cpu_only(Self::KIND, other)),
         }
     }

@@ -340,8 +340,12 @@ fn pair_contact(a: u32, b: u32, spring_in: vec4<f32>, rolling_in: vec3<f32>) -> 
     if (dist2 >= rsum * rsum) {
         // A JKR contact outlives zero overlap (necking) until its separation: only JKR's
         // attraction acts there, no Hertz load, so no friction (the CPU engine's kernel).
+        // Most listed pairs are apart and were apart: only one that touched reads its constants.
+        if (spring_in.w == 0.0) {
+            return o;
+        }
         let c = pair_constants(cell[a].w, cell[b].w);
-        if (c.c.x > 0.0 && spring_in.w != 0.0) {
+        if (c.c.x > 0.0) {
             let dist = sqrt(dist2);
             let r_star = ra * rb / rsum;
             let dd = (rsum - dist) / jkr_unit(c, r_star);
@@ -565,20 +569,15 @@ struct TriContact {
     material: i32,
     geometry: i32,
     mover: i32,                // the moving geometry's slot (-1: static)
-    wall_velocity: vec3<f32>,  // the wall's velocity at the contact point
-    wall_spin: vec3<f32>,      // the wall's angular velocity
-    from_axis: vec3<f32>,      // the contact point less the wall's reference point
 }
 
-// A triangle's frame as the grain sees it: the rotation to the world frame (columns: the rows
-// of the body-to-world rotation, so `v * to_world` is the world vector), the wall's velocity
-// and spin, and the grain's centre less the point the wall spins about (world frame).
+// A triangle's frame as the grain sees it: its moving geometry's slot (-1: static) and the
+// rotation to the world frame (columns: the rows of the body-to-world rotation, so
+// `v * to_world` is the world vector). The wall's motion is read from the mover's frame only
+// for the contacts kept (`WallMotion`), not carried by every candidate.
 struct Wall {
     mover: i32,
     to_world: mat3x3<f32>,
-    velocity: vec3<f32>,
-    spin: vec3<f32>,
-    centre_from_axis: vec3<f32>,
 }
 
 fn static_wall() -> Wall {
@@ -586,9 +585,30 @@ fn static_wall() -> Wall {
     w.mover = -1;
     w.to_world = mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0),
         vec3<f32>(0.0, 0.0, 1.0));
+    return w;
+}
+
+// A kept wall contact's motion: the wall's velocity at the contact point, its spin, and the
+// contact point less the wall's reference point (the lever of its load's torque).
+struct WallMotion {
+    velocity: vec3<f32>,
+    spin: vec3<f32>,
+    from_axis: vec3<f32>,
+}
+
+// The motion of contact `tc` of the grain at voxel `ci`, offset `oi` (a static wall: none).
+fn wall_motion(tc: TriContact, ci: vec3<i32>, oi: vec3<f32>) -> WallMotion {
+    var w: WallMotion;
     w.velocity = vec3<f32>(0.0);
     w.spin = vec3<f32>(0.0);
-    w.centre_from_axis = vec3<f32>(0.0);
+    w.from_axis = tc.point;
+    if (tc.mover >= 0) {
+        let g = F.m[u32(tc.mover)];
+        let from_origin = vec3<f32>(ci - g.cell.xyz) * P.csize.xyz + (oi - g.off.xyz);
+        w.from_axis = tc.point + (from_origin - g.lever.xyz);
+        w.velocity = g.vel.xyz + cross(g.spin.xyz, w.from_axis);
+        w.spin = g.spin.xyz;
+    }
     return w;
 }
 
@@ -672,9 +692,6 @@ fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, 
     tc.material = tri.cell.w;
     tc.geometry = geometry;
     tc.mover = wall.mover;
-    tc.from_axis = point + wall.centre_from_axis;
-    tc.wall_velocity = wall.velocity + cross(wall.spin, tc.from_axis);
-    tc.wall_spin = wall.spin;
     (*cand)[*nc] = tc;
     *nc += 1u;
 }
@@ -752,9 +769,6 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         var w: Wall;
         w.mover = i32(m);
         w.to_world = mat3x3<f32>(g.rot0.xyz, g.rot1.xyz, g.rot2.xyz);
-        w.velocity = g.vel.xyz;
-        w.spin = g.spin.xyz;
-        w.centre_from_axis = from_origin - g.lever.xyz;
         let body = w.to_world * from_origin;
         let u = (body - g.grid_min.xyz) / g.off.w;
         if (any(u < vec3<f32>(0.0)) || any(u >= vec3<f32>(g.grid_dims.xyz))) {
@@ -808,8 +822,15 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     let wi = omg[i].xyz;
-    var load_f: array<vec3<f32>, MAX_MOVERS>;
-    var load_t: array<vec3<f32>, MAX_MOVERS>;
+    // A recorded evaluation: the grain's shares of the moving geometries' loads, summed in its
+    // own slots (only this thread writes them) and by `reduce_loads` after.
+    let recording = F.head.x >= 0;
+    if (recording) {
+        for (var m = 0u; m < P.movers.x; m++) {
+            wload[slot(i, 2u * m)] = vec4<f32>(0.0);
+            wload[slot(i, 2u * m + 1u)] = vec4<f32>(0.0);
+        }
+    }
     for (var a = 0u; a < WCAP; a++) {
         if (a >= kept) {
             walls[slot(i, 2u * a)] = vec4<f32>(0.0);
@@ -834,7 +855,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
         let arm = tc.point;
-        let vrel = vi.xyz + cross(wi, arm) - tc.wall_velocity;
+        let motion = wall_motion(tc, ci, oi);
+        let vrel = vi.xyz + cross(wi, arm) - motion.velocity;
         let c = pair_constants(cell[i].w, tc.material);
         let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, spring);
         var force = h.force;
@@ -849,28 +871,23 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         f += force;
         tq += cross(arm, force);
         if (epsd()) {
-            let r = epsd_rolling(tc.normal, wi - tc.wall_spin, h.stiffness, c.b.y, ri,
+            let r = epsd_rolling(tc.normal, wi - motion.spin, h.stiffness, c.b.y, ri,
                 h.normal_force, 1.0 / omg[i].w + mi * ri * ri, rolling);
             tq += r.torque;
             walls[slot(i, 2u * WCAP + a)] = vec4<f32>(r.spring, 0.0);
         } else {
             moment += c.b.y * h.normal_force * length(arm);
         }
-        if (tc.mover >= 0) {
-            load_f[tc.mover] -= force;
-            load_t[tc.mover] -= cross(tc.from_axis, force);
+        if (recording && tc.mover >= 0) {
+            let m = u32(tc.mover);
+            wload[slot(i, 2u * m)] -= vec4<f32>(force, 0.0);
+            wload[slot(i, 2u * m + 1u)] -= vec4<f32>(cross(motion.from_axis, force), 0.0);
         }
         walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, f32(tc.geometry + 1));
         walls[slot(i, 2u * a + 1u)] = vec4<f32>(h.spring, 0.0);
     }
     frc[i] = vec4<f32>(f, moment);
     trq[i] = vec4<f32>(tq, touching);
-    if (F.head.x >= 0) {
-        for (var m = 0u; m < P.movers.x; m++) {
-            wload[slot(i, 2u * m)] = vec4<f32>(load_f[m], 0.0);
-            wload[slot(i, 2u * m + 1u)] = vec4<f32>(load_t[m], 0.0);
-        }
-    }
 }
 
 // ---- loads on the moving geometries ----

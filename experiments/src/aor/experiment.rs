@@ -46,9 +46,7 @@ impl Experiment for Aor {
     }
 
     /// Both engines run every angle-of-repose spec (either protocol, every contact law).
-    fn check_backend(_spec: &AorSpec, _backend: BackendKind) -> Result<(), ExperimentError> {
-        Ok(())
-    }
+    const RUNS_ON_GPU: bool = true;
 
     /// On the CPU, [`Experiment::run`] as documented there. On the GPU the run keeps no
     /// checkpoint and continues none (`checkpoints` is not used: a GPU run cannot be continued

@@ -43,9 +43,7 @@ impl Experiment for Drill {
     }
 
     /// Both engines run every drilling spec (every contact law).
-    fn check_backend(_spec: &DrillSpec, _backend: BackendKind) -> Result<(), ExperimentError> {
-        Ok(())
-    }
+    const RUNS_ON_GPU: bool = true;
 
     /// [`Experiment::run`] on `engine`: the bed is settled on that engine too, and kept under
     /// its own key (a GPU bed's ends in `-gpu`), so a run never drills another engine's bed. A

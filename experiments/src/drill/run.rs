@@ -18,8 +18,9 @@ use serde::{Deserialize, Serialize};
 use super::measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 use super::picture::{forces_svg, section_svg};
 use super::spec::{DrillSpec, SpecError};
-use crate::backend::{steps_until, BackendError, Engine, Grains};
+use crate::backend::{BackendError, Engine, Grains};
 pub use crate::progress::{Control, Progress};
+use crate::soil::advance_to_check;
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
     BedError, BedInfo, BedMismatch, HeightField, NoBedStore, OnBed, SettledBed, SettledBy,
@@ -469,12 +470,7 @@ fn drill(
     let mut stopped: Option<DrillStatus> = None;
     let mut backend = engine.start(world)?;
     loop {
-        // The loop looks at the state at the next check and every REPORT_EVERY steps; a
-        // backend may take the steps up to the first of them at once (the CPU takes one).
-        let report_in = REPORT_EVERY - backend.steps() % REPORT_EVERY;
-        let (t, dt) = (backend.time(), backend.time_step());
-        backend.advance(steps_until(t, dt, next_check, report_in))?;
-        let t = backend.time();
+        let t = advance_to_check(backend.as_mut(), next_check)?;
         let is_check = t >= next_check;
         if is_check {
             next_check += settle.check_interval;

@@ -14,7 +14,8 @@ pub use bed::{
     run_on_bed, BedMismatch, BedStore, NoBedStore, OnBed, SettledBed, SettledBy, BED_FORMAT,
 };
 pub(crate) use recipe::{
-    bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix, REPORT_EVERY,
+    advance_to_check, bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix,
+    REPORT_EVERY,
 };
 pub use recipe::{BedError, BedInfo, BedProgress, BedRecipe, BedSpec, BinSpec, SurfaceReading};
 pub(crate) use spec::{

@@ -28,7 +28,7 @@ use super::spec::{
     RollingSpec, SettleSpec,
 };
 use super::surface::{height_field, surface_level};
-use crate::backend::{steps_until, BackendError, BackendKind, Engine, Grains};
+use crate::backend::{steps_until, Backend, BackendError, BackendKind, Engine, Grains};
 use crate::progress::Control;
 use crate::spec_path::{invalid, SpecError};
 
@@ -490,12 +490,7 @@ fn build_bed(
     let mean_r = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
     let mut backend = engine.start(world)?;
     loop {
-        // The loop looks at the state at the next check and every REPORT_EVERY steps; a
-        // backend may take the steps up to the first of them at once (the CPU takes one).
-        let report_in = REPORT_EVERY - backend.steps() % REPORT_EVERY;
-        let (t, dt) = (backend.time(), backend.time_step());
-        backend.advance(steps_until(t, dt, next_check, report_in))?;
-        let t = backend.time();
+        let t = advance_to_check(backend.as_mut(), next_check)?;
         let is_check = t >= next_check;
         if is_check {
             next_check += settle.check_interval;
@@ -558,3 +553,16 @@ fn build_bed(
 
 /// Steps between two progress reports (and wall-time checks) of a soil run.
 pub(crate) const REPORT_EVERY: u64 = 200;
+
+/// Advances a soil run's `backend` up to the first of the check at `next_check` (s) and the
+/// next progress report (every [`REPORT_EVERY`] steps), the states its loop looks at: a
+/// backend may take those steps at once (the CPU engine takes one). Returns the time reached.
+pub(crate) fn advance_to_check(
+    backend: &mut dyn Backend,
+    next_check: f64,
+) -> Result<f64, BackendError> {
+    let report_in = REPORT_EVERY - backend.steps() % REPORT_EVERY;
+    let (t, dt) = (backend.time(), backend.time_step());
+    backend.advance(steps_until(t, dt, next_check, report_in))?;
+    Ok(backend.time())
+}
