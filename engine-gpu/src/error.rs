@@ -17,6 +17,10 @@ pub enum GpuError {
     /// The scene does not fit the backend's fixed capacities or the adapter's limits.
     #[error("the scene does not fit the GPU backend: {0}")]
     Capacity(String),
+    /// An argument that is not valid for the world: a geometry index that is not one of its
+    /// geometries.
+    #[error("invalid argument: {0}")]
+    Invalid(String),
     /// A particle to insert is not valid for the world (material, radius, place).
     #[error("cannot insert a particle: {0}")]
     Particle(String),

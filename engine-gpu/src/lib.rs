@@ -8,9 +8,10 @@
 //! friction as a brake on the new spin, or EPSD's rolling spring; linear (SJKR) or JKR
 //! cohesion, JKR's necking included — in f32. A moving mesh's motion is evaluated in f64 on the
 //! host before each force evaluation (`movers`). Grains can be inserted between runs of steps
-//! into a fixed number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). What this
-//! backend does not simulate (a world's own particle sources: its caller serves them) is
-//! refused by name, never approximated.
+//! into a fixed number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). A still
+//! geometry can be held as a moving mesh ([`GpuWorld::with_movers`]) to record its loads.
+//! What this backend does not simulate (a world's own particle sources: its caller serves
+//! them) is refused by name, never approximated.
 //!
 //! **Positions** are integer voxels plus f32 offsets inside the voxel, so the vector between
 //! two nearby particles (and a particle and a triangle's first corner) is exact to the
@@ -32,6 +33,7 @@ pub mod bench;
 
 pub use device::Gpu;
 pub use error::GpuError;
+pub use movers::MAX_MOVERS;
 pub use scene::Capacity;
 pub use world::{Counters, GpuParticles, GpuWorld};
 

@@ -344,22 +344,37 @@ fn v4(v: Vec3, w: f32) -> [f32; 4] {
 
 impl Scene {
     /// The GPU form of `world` now, with room for `capacity` (slots past the world's
-    /// particles are empty). Refuses what this backend does not simulate yet (particle
-    /// sources), naming it.
-    pub fn from_world(world: &World, capacity: Capacity) -> Result<Scene, GpuError> {
+    /// particles are empty). The geometries that move, and those listed in `movable` (indices
+    /// into the world's geometries, still or not), are moving meshes ([`crate::movers`]); the
+    /// others are baked into the voxels. Refuses what this backend does not simulate yet
+    /// (particle sources), naming it, a `movable` index that is not a geometry of the world,
+    /// and more than [`MAX_MOVERS`] moving meshes.
+    pub fn from_world(
+        world: &World,
+        capacity: Capacity,
+        movable: &[usize],
+    ) -> Result<Scene, GpuError> {
         let config = world.config();
         let materials = world.materials();
         if world.sources().next().is_some() {
             return Err(GpuError::Unsupported("particle factories (sources)".into()));
         }
-        let moving = world
+        let geometries = world.geometries().len();
+        if let Some(&index) = movable.iter().find(|&&g| g >= geometries) {
+            return Err(GpuError::Invalid(format!(
+                "movable geometry {index}: the world has {geometries} geometries"
+            )));
+        }
+        let moves: Vec<bool> = world
             .geometries()
             .iter()
-            .filter(|g| !g.motion.is_stationary())
-            .count();
+            .enumerate()
+            .map(|(index, g)| !g.motion.is_stationary() || movable.contains(&index))
+            .collect();
+        let moving = moves.iter().filter(|&&m| m).count();
         if moving > MAX_MOVERS {
             return Err(GpuError::Capacity(format!(
-                "{moving} moving geometries (at most {MAX_MOVERS})"
+                "{moving} moving or movable geometries (at most {MAX_MOVERS})"
             )));
         }
         let p = world.particles();
@@ -419,7 +434,7 @@ impl Scene {
         let mut tris = Vec::new();
         let mut corners = Vec::new();
         for (index, g) in world.geometries().iter().enumerate() {
-            if !g.motion.is_stationary() {
+            if moves[index] {
                 continue;
             }
             let pose = g.motion.pose_at(world.time());
@@ -442,7 +457,7 @@ impl Scene {
         let mut tri_grid = bin_triangles(&grid, &corners, reach);
         let mut movers = Vec::new();
         for (index, g) in world.geometries().iter().enumerate() {
-            if g.motion.is_stationary() {
+            if !moves[index] {
                 continue;
             }
             let body = bin_body_mesh(&g.mesh, grid.voxel.min(), reach, tris.len() as u32)?;

@@ -169,7 +169,22 @@ impl GpuWorld {
         world: &World,
         capacity: Capacity,
     ) -> Result<GpuWorld, GpuError> {
-        let scene = Scene::from_world(world, capacity)?;
+        GpuWorld::with_movers(gpu, world, capacity, &[])
+    }
+
+    /// [`GpuWorld::with_capacity`], with the geometries listed in `movable` (indices into
+    /// `world.geometries()`) held as moving meshes even while their motion is stationary: their
+    /// loads are recorded ([`GpuWorld::geometry_series`]). The geometries that move are moving
+    /// meshes whether listed or not. Errors: an index that is not one of the world's geometries
+    /// ([`GpuError::Invalid`]), more than [`MAX_MOVERS`](crate::MAX_MOVERS) moving meshes in
+    /// all ([`GpuError::Capacity`]).
+    pub fn with_movers(
+        gpu: &Gpu,
+        world: &World,
+        capacity: Capacity,
+        movable: &[usize],
+    ) -> Result<GpuWorld, GpuError> {
+        let scene = Scene::from_world(world, capacity, movable)?;
         let n = scene.cell.len();
         let limits = gpu.limits();
         // EPSD keeps a rolling spring after each tangential one (the shader's `epsd()`).
@@ -724,7 +739,8 @@ impl GpuWorld {
     /// `geometry_record_interval` steps since the start or the last
     /// [`GpuWorld::clear_geometry_series`], the force the grains exert on it and its torque
     /// about its reference point, at the time of the force evaluation. Summed in f32 in a
-    /// fixed order (the same bits on one adapter). A static geometry's loads are not summed on
+    /// fixed order (the same bits on one adapter). The loads on a geometry baked into the
+    /// voxels (still, and not listed as movable: [`GpuWorld::with_movers`]) are not summed on
     /// the GPU: an error naming it.
     pub fn geometry_series(&mut self, geometry: usize) -> Result<&[GeometrySample], GpuError> {
         let Some(m) = self.movers.iter().position(|m| m.geometry == geometry) else {

@@ -8,3 +8,4 @@ mod insertion;
 mod jkr;
 mod moving;
 mod parity;
+mod shear;
