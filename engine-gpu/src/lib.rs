@@ -9,7 +9,8 @@
 //! cohesion, JKR's necking included — in f32. A moving mesh's motion is evaluated in f64 on the
 //! host before each force evaluation (`movers`). Grains can be inserted between runs of steps
 //! into a fixed number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). A still
-//! geometry can be held as a moving mesh ([`GpuWorld::with_movers`]) to record its loads.
+//! geometry can be held as a moving mesh ([`GpuWorld::with_movers`]) to record its loads and
+//! to be set moving during the run ([`GpuWorld::set_motion`]).
 //! What this backend does not simulate (a world's own particle sources: its caller serves
 //! them) is refused by name, never approximated.
 //!

@@ -2,6 +2,7 @@
 
 use bytemuck::Pod;
 use repose_engine::integrate::Integrator;
+use repose_engine::kinematics::Motion;
 use repose_engine::math::Vec3;
 use repose_engine::world::{GeometrySample, World};
 use wgpu::util::DeviceExt;
@@ -126,6 +127,8 @@ pub struct GpuWorld {
     pending: Vec<f64>,
     /// Per moving geometry, the loads read back.
     loads: Vec<Vec<GeometrySample>>,
+    /// The geometries of the world the GPU world was built from.
+    geometries: usize,
     step_params: wgpu::BindGroup,
     start_params: wgpu::BindGroup,
     /// Removed grains' slots refilled by [`GpuWorld::insert`].
@@ -174,8 +177,9 @@ impl GpuWorld {
 
     /// [`GpuWorld::with_capacity`], with the geometries listed in `movable` (indices into
     /// `world.geometries()`) held as moving meshes even while their motion is stationary: their
-    /// loads are recorded ([`GpuWorld::geometry_series`]). The geometries that move are moving
-    /// meshes whether listed or not. Errors: an index that is not one of the world's geometries
+    /// loads are recorded ([`GpuWorld::geometry_series`]) and their motion can be replaced
+    /// during the run ([`GpuWorld::set_motion`]). The geometries that move are moving meshes
+    /// whether listed or not. Errors: an index that is not one of the world's geometries
     /// ([`GpuError::Invalid`]), more than [`MAX_MOVERS`](crate::MAX_MOVERS) moving meshes in
     /// all ([`GpuError::Capacity`]).
     pub fn with_movers(
@@ -438,6 +442,7 @@ impl GpuWorld {
             },
             main_group,
             loads: vec![Vec::new(); scene.movers.len()],
+            geometries: world.geometries().len(),
             movers: scene.movers,
             frames,
             frames_group,
@@ -662,6 +667,33 @@ impl GpuWorld {
             self.steps += chunk;
             left -= chunk;
         }
+        Ok(())
+    }
+
+    /// Replaces moving geometry `geometry`'s motion (its index in the world the GPU world was
+    /// built from) from the present time on, as the CPU engine's `World::set_geometry_motion`:
+    /// the host evaluates the new motion for the following force evaluations, and a velocity
+    /// Verlet run evaluates the forces again with it before its next step. The mesh stays in
+    /// its body frame (its body grid is valid for any pose); the new motion should start at the
+    /// pose the geometry has now (e.g. `Motion::translating(pose, velocity, time)`), or the
+    /// geometry jumps. Errors: a geometry that is not one of the world's
+    /// ([`GpuError::Invalid`]) or is baked into the voxels, neither moving nor listed as
+    /// movable at creation ([`GpuWorld::with_movers`]; [`GpuError::Unsupported`]).
+    pub fn set_motion(&mut self, geometry: usize, motion: Motion) -> Result<(), GpuError> {
+        if geometry >= self.geometries {
+            return Err(GpuError::Invalid(format!(
+                "geometry {geometry}: the world has {} geometries",
+                self.geometries
+            )));
+        }
+        let Some(mover) = self.movers.iter_mut().find(|m| m.geometry == geometry) else {
+            return Err(GpuError::Unsupported(format!(
+                "a new motion for geometry {geometry}, which was still and not listed as \
+                 movable when the GPU world was built"
+            )));
+        };
+        mover.motion = motion;
+        self.forces_current = false;
         Ok(())
     }
 
