@@ -18,7 +18,7 @@ pub enum GpuError {
     #[error("the scene does not fit the GPU backend: {0}")]
     Capacity(String),
     /// An argument that is not valid for the world: a geometry index that is not one of its
-    /// geometries.
+    /// geometries, a slab that is not finite, no steps to sample.
     #[error("invalid argument: {0}")]
     Invalid(String),
     /// A particle to insert is not valid for the world (material, radius, place).

@@ -10,7 +10,8 @@
 //! host before each force evaluation (`movers`). Grains can be inserted between runs of steps
 //! into a fixed number of slots ([`GpuWorld::with_capacity`], [`GpuWorld::insert`]). A still
 //! geometry can be held as a moving mesh ([`GpuWorld::with_movers`]) to record its loads and
-//! to be set moving during the run ([`GpuWorld::set_motion`]).
+//! to be set moving during the run ([`GpuWorld::set_motion`]), and a slab's contact stress
+//! sums are sampled on the GPU ([`GpuWorld::run_sampling_slab`]: the shear test's window).
 //! What this backend does not simulate (a world's own particle sources: its caller serves
 //! them) is refused by name, never approximated.
 //!
@@ -36,7 +37,7 @@ pub use device::Gpu;
 pub use error::GpuError;
 pub use movers::MAX_MOVERS;
 pub use scene::Capacity;
-pub use world::{Counters, GpuParticles, GpuWorld};
+pub use world::{Counters, GpuParticles, GpuWorld, Slab};
 
 /// The backend's name in a result's provenance: `gpu:<adapter>`.
 pub fn engine_version(gpu: &Gpu) -> String {

@@ -53,16 +53,33 @@ pub(crate) struct MoverFrame {
     pub grid_dims: [i32; 4],
 }
 
+/// A slab whose contacts' stress sums a force evaluation writes (`GpuWorld::run_sampling_slab`),
+/// as the shader sees it: its low corner as a voxel and an offset (so a grain's height above
+/// it is exact to the offsets' resolution) and its extent.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default)]
+pub(crate) struct SlabFrame {
+    /// The voxel of the corner (x0, y0, z0), not wrapped.
+    pub cell: [i32; 4],
+    /// The corner's offset in its voxel.
+    pub off: [f32; 4],
+    /// x1 - x0, y1 - y0, z1 - z0, m.
+    pub size: [f32; 4],
+}
+
 /// The frames of one force evaluation: the shader's uniform block (one per evaluation of a
 /// submission, at a dynamic offset).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub(crate) struct Frames {
-    /// x: the load record this evaluation writes (-1: none); the rest unused.
+    /// x: the load record this evaluation writes (-1: none); y: 1 where this evaluation
+    /// writes the slab's stress sums; the rest unused.
     pub head: [i32; 4],
     pub movers: [MoverFrame; MAX_MOVERS],
+    /// The slab sampled where `head.y` is 1.
+    pub slab: SlabFrame,
     /// To a multiple of 256 bytes (uniform offsets' alignment).
-    pub pad: [[u32; 4]; 15],
+    pub pad: [[u32; 4]; 12],
 }
 
 /// A body-frame grid: cells of `edge` from `min`, `dims` per axis.
@@ -166,10 +183,21 @@ impl Mover {
     }
 }
 
-/// The frames of `movers` at time `t`, writing load record `record` (none: -1).
-pub(crate) fn frames_at(movers: &[Mover], grid: &Grid, t: f64, record: i32) -> Frames {
+/// The frames of `movers` at time `t`, writing load record `record` (none: -1) and, given a
+/// slab, its stress sums.
+pub(crate) fn frames_at(
+    movers: &[Mover],
+    grid: &Grid,
+    t: f64,
+    record: i32,
+    slab: Option<&SlabFrame>,
+) -> Frames {
     let mut frames = Frames::zeroed();
     frames.head[0] = record;
+    if let Some(slab) = slab {
+        frames.head[1] = 1;
+        frames.slab = *slab;
+    }
     for (slot, mover) in frames.movers.iter_mut().zip(movers) {
         *slot = mover.frame(grid, t);
     }

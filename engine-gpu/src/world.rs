@@ -9,7 +9,7 @@ use wgpu::util::DeviceExt;
 
 use repose_engine::particles::ParticleSpec;
 
-use crate::movers::{frames_at, Frames, Mover};
+use crate::movers::{frames_at, Frames, Mover, SlabFrame};
 use crate::scene::{
     particle_record, Capacity, Grid, Params, Record, Scene, Voxel, BIN_CAPACITY,
     NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
@@ -67,6 +67,7 @@ struct Buffers {
     nbr: wgpu::Buffer,
     ctl: wgpu::Buffer,
     series: wgpu::Buffer,
+    slab: wgpu::Buffer,
     bytes: u64,
 }
 
@@ -83,6 +84,15 @@ pub struct GpuParticles {
     pub removed: Vec<bool>,
     /// Particle-particle contacts of each particle at the last force evaluation.
     pub contacts: Vec<u32>,
+}
+
+/// A box of the domain, m: `x`, `y` and `z` ranges (low, high) for
+/// [`GpuWorld::run_sampling_slab`] (the slab is the `z` range).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Slab {
+    pub x: [f64; 2],
+    pub y: [f64; 2],
+    pub z: [f64; 2],
 }
 
 /// Counters of the run so far.
@@ -272,6 +282,8 @@ impl GpuWorld {
         let movers = scene.movers.len() as u64;
         let wload = zeroed("wload", n64 * movers * 32);
         let series = zeroed("series", SERIES_RECORDS as u64 * movers * 32);
+        // Each grain's share of a sampled slab's stress sums (`run_sampling_slab`).
+        let slab = zeroed("slab", n64 * 16);
 
         let storage_entry = |binding: u32| wgpu::BindGroupLayoutEntry {
             binding,
@@ -285,7 +297,7 @@ impl GpuWorld {
         };
         let main_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("main"),
-            entries: &(0..22).map(storage_entry).collect::<Vec<_>>(),
+            entries: &(0..23).map(storage_entry).collect::<Vec<_>>(),
         });
         let frames_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("frames"),
@@ -333,9 +345,9 @@ impl GpuWorld {
                 count: None,
             }],
         });
-        let all: [&wgpu::Buffer; 22] = [
+        let all: [&wgpu::Buffer; 23] = [
             &cell, &off, &vel, &omg, &frc, &trq, &disp, &nbr, &nbn, &spr, &nbr2, &nbn2, &spr2,
-            &bins, &binn, &walls, &tris, &pc, &ctl, &tri_grid, &wload, &series,
+            &bins, &binn, &walls, &tris, &pc, &ctl, &tri_grid, &wload, &series, &slab,
         ];
         let main_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("main"),
@@ -438,6 +450,7 @@ impl GpuWorld {
                 nbr,
                 ctl,
                 series,
+                slab,
                 bytes,
             },
             main_group,
@@ -622,6 +635,82 @@ impl GpuWorld {
     /// wait for them). Errors: the device was lost while the moving geometries' load records
     /// were read back (every 16 384 records).
     pub fn run(&mut self, steps: u64) -> Result<(), GpuError> {
+        self.run_steps(steps, None)
+    }
+
+    /// Advances `steps` (at least one) steps, as [`GpuWorld::run`] does (the moving geometries'
+    /// loads recorded alike), and returns the stress sum of `slab` at the last step's force
+    /// evaluation: over the particle-particle contacts, each pair once, whose branch's midpoint
+    /// has its x and y in `[x0, x1) × [y0, y1)`, Σ (the contact's force on the pair's upper
+    /// grain from the lower one) × (the length of the branch's vertical extent inside
+    /// `[z0, z1]`), N·m; components x, y, z. The force is the whole contact force (elastic,
+    /// damping, tangential, cohesion), not its torques; the upper grain is the one with the
+    /// higher centre, and a contact with no length inside the slab does not count (the
+    /// shear test's measurement window: its normal stress is `sum.z / V`, its shear stress
+    /// `-sum.x / V`, V the slab's volume). The branch is the one of the force evaluation (the
+    /// CPU engine's, read after a symplectic Euler step, is one drift later) and its midpoint
+    /// is taken from the pair's lower slot (in a periodic domain, the image next to it).
+    ///
+    /// Each grain sums its shares of its pairs with higher slots in f32 in its list order; the
+    /// host sums the grains in f64 in slot order: the same bits every time on one adapter.
+    /// Waits for the steps. Errors: no steps, or a slab bound that is not finite or a range
+    /// whose low end is above its high end ([`GpuError::Invalid`]); a lost device.
+    pub fn run_sampling_slab(&mut self, steps: u64, slab: &Slab) -> Result<[f64; 3], GpuError> {
+        if steps == 0 {
+            return Err(GpuError::Invalid(
+                "sampling a slab takes at least one step".into(),
+            ));
+        }
+        let frame = self.slab_frame(slab)?;
+        self.run_steps(steps, Some(frame))?;
+        if self.n == 0 {
+            return Ok([0.0; 3]);
+        }
+        let shares: Vec<[f32; 4]> = self.read_prefix(&self.buffers.slab, self.n as u64 * 16)?;
+        let mut sum = [0.0f64; 3];
+        for share in &shares {
+            for (s, &v) in sum.iter_mut().zip(share) {
+                *s += v as f64;
+            }
+        }
+        Ok(sum)
+    }
+
+    /// `slab` as the shader takes it: its low corner as a voxel and an offset, and its extent.
+    /// A bound farther than the grid's span outside it is moved to that distance (no grain
+    /// or branch midpoint lies there: the same sums).
+    fn slab_frame(&self, slab: &Slab) -> Result<SlabFrame, GpuError> {
+        let ranges = [slab.x, slab.y, slab.z];
+        for (axis, r) in ["x", "y", "z"].iter().zip(&ranges) {
+            if !(r[0].is_finite() && r[1].is_finite()) || r[0] > r[1] {
+                return Err(GpuError::Invalid(format!(
+                    "the slab's {axis} range [{}, {}] is not a finite range, low end first",
+                    r[0], r[1]
+                )));
+            }
+        }
+        let g = &self.grid;
+        let clamp = |a: usize, v: f64| {
+            let span = g.dims[a] as f64 * g.voxel[a];
+            v.clamp(g.min[a] - span, g.min[a] + 2.0 * span)
+        };
+        let lo = Vec3::from_fn(|a, _| clamp(a, ranges[a][0]));
+        let hi = Vec3::from_fn(|a, _| clamp(a, ranges[a][1]));
+        let (cell, off) = g.to_voxel_unwrapped(lo);
+        Ok(SlabFrame {
+            cell: [cell[0], cell[1], cell[2], 0],
+            off: [off[0], off[1], off[2], 0.0],
+            size: [
+                (hi.x - lo.x) as f32,
+                (hi.y - lo.y) as f32,
+                (hi.z - lo.z) as f32,
+                0.0,
+            ],
+        })
+    }
+
+    /// [`GpuWorld::run`]; given a slab, the last step's force evaluation writes its shares.
+    fn run_steps(&mut self, steps: u64, slab: Option<SlabFrame>) -> Result<(), GpuError> {
         let mut left = steps;
         while left > 0 {
             let chunk = left.min(STEPS_PER_SUBMIT);
@@ -635,7 +724,8 @@ impl GpuWorld {
                 self.read_loads()?;
             }
             let startup = self.integrator == Integrator::VelocityVerlet && !self.forces_current;
-            self.write_frames(&records, startup);
+            let sample = if left == chunk { slab.as_ref() } else { None };
+            self.write_frames(&records, startup, sample);
             let mut encoder = self
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -700,18 +790,17 @@ impl GpuWorld {
     /// Writes the moving geometries' frames for the force evaluations of the next steps
     /// (`records`: whether each step records its loads), in the order they run: a Verlet
     /// start-up's at the present time, then one per step, at the step's start (symplectic
-    /// Euler) or end (velocity Verlet), the times the CPU engine evaluates its forces at.
-    /// Notes the recorded evaluations' times as pending.
-    fn write_frames(&mut self, records: &[bool], startup: bool) {
-        if self.movers.is_empty() {
-            return;
-        }
+    /// Euler) or end (velocity Verlet), the times the CPU engine evaluates its forces at; the
+    /// last step's samples `slab`, if any. Notes the recorded evaluations' times as pending.
+    /// Written even without moving geometries: each block says whether its evaluation samples.
+    fn write_frames(&mut self, records: &[bool], startup: bool, slab: Option<&SlabFrame>) {
         let mut frames = Vec::with_capacity(records.len() + 1);
         let mut t = self.time;
         if startup {
-            frames.push(frames_at(&self.movers, &self.grid, t, -1));
+            frames.push(frames_at(&self.movers, &self.grid, t, -1, None));
         }
-        for &record in records {
+        for (k, &record) in records.iter().enumerate() {
+            let sample = if k + 1 == records.len() { slab } else { None };
             let end = t + self.time_step;
             let at = match self.integrator {
                 Integrator::SymplecticEuler => t,
@@ -723,7 +812,7 @@ impl GpuWorld {
             } else {
                 -1
             };
-            frames.push(frames_at(&self.movers, &self.grid, at, slot));
+            frames.push(frames_at(&self.movers, &self.grid, at, slot, sample));
             t = end;
         }
         self.queue
@@ -732,11 +821,7 @@ impl GpuWorld {
 
     /// Binds the frames of the next force evaluation.
     fn set_frames(&self, pass: &mut wgpu::ComputePass, evaluation: &mut u32) {
-        let offset = if self.movers.is_empty() {
-            0
-        } else {
-            *evaluation * FRAME_BYTES as u32
-        };
+        let offset = *evaluation * FRAME_BYTES as u32;
         pass.set_bind_group(2, &self.frames_group, &[offset]);
         *evaluation += 1;
     }

@@ -92,6 +92,9 @@ struct Tri {
 // geometry m at a recorded force evaluation; their sums, two vec4 per geometry per record.
 @group(0) @binding(20) var<storage, read_write> wload: array<vec4<f32>>;
 @group(0) @binding(21) var<storage, read_write> series: array<vec4<f32>>;
+// Each grain's share of the sampled slab's stress sums (xyz) at a sampling force evaluation:
+// from its contacts with the grains of higher slots (`slab_share`).
+@group(0) @binding(22) var<storage, read_write> slab_sums: array<vec4<f32>>;
 @group(1) @binding(0) var<uniform> P: Params;
 
 const MAX_MOVERS: u32 = 8u;
@@ -115,10 +118,20 @@ struct Mover {
     grid_dims: vec4<i32>,
 }
 
+// A slab sampled at this force evaluation: its low corner (x0, y0, z0) as a voxel (not
+// wrapped) and an offset, and its extent x1 - x0, y1 - y0, z1 - z0.
+struct Slab {
+    cell: vec4<i32>,
+    off: vec4<f32>,
+    size: vec4<f32>,
+}
+
 struct Frames {
-    // x: the load record this force evaluation writes (-1: none)
+    // x: the load record this force evaluation writes (-1: none); y: 1 where it samples the
+    // slab
     head: vec4<i32>,
     m: array<Mover, MAX_MOVERS>,
+    slab: Slab,
 }
 
 @group(2) @binding(0) var<uniform> F: Frames;
@@ -696,15 +709,44 @@ fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, 
     *nc += 1u;
 }
 
+// The slab's share of the contact of i and j (i < j) whose force on i is `force_on_i`: the
+// force on the upper grain (the higher centre) from the lower one times the length of the
+// branch's vertical extent inside the slab, where the branch's midpoint lies in the slab's x
+// and y ranges (the CPU's shear window, `Window::add`). Heights and the midpoint are taken
+// from the slab's corner as voxel differences plus offsets, exact to the offsets' resolution.
+fn slab_share(i: u32, j: u32, force_on_i: vec3<f32>) -> vec3<f32> {
+    let s = F.slab;
+    let branch = -rel(i, j);
+    let from_corner = vec3<f32>(cell[i].xyz - s.cell.xyz) * P.csize.xyz
+        + (off[i].xyz - s.off.xyz);
+    let mid = from_corner.xy + 0.5 * branch.xy;
+    if (any(mid < vec2<f32>(0.0)) || any(mid >= s.size.xy)) {
+        return vec3<f32>(0.0);
+    }
+    let zi = from_corner.z;
+    let zj = zi + branch.z;
+    let inside = max(min(max(zi, zj), s.size.z) - max(min(zi, zj), 0.0), 0.0);
+    if (inside == 0.0) {
+        return vec3<f32>(0.0);
+    }
+    // j's force (minus i's) where j is at least as high.
+    return select(force_on_i, -force_on_i, branch.z >= 0.0) * inside;
+}
+
 @compute @workgroup_size(WG)
 fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if (i >= P.n) {
         return;
     }
+    // A sampling evaluation: the grain's share of the slab's sums, in its own slot.
+    let sampling = F.head.y != 0;
     if (!alive(i)) {
         frc[i] = vec4<f32>(0.0);
         trq[i] = vec4<f32>(0.0);
+        if (sampling) {
+            slab_sums[i] = vec4<f32>(0.0);
+        }
         return;
     }
     let vi = vel[i];
@@ -714,6 +756,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     var tq = vec3<f32>(0.0);
     var moment = 0.0;
     var touching = 0.0;
+    var sampled = vec3<f32>(0.0);
     let count = nbn[i];
     for (var k = 0u; k < count; k++) {
         let j = nbr[slot(i, k)];
@@ -738,6 +781,9 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
             tq += select(o.torque_b, o.torque_a, lower);
             moment += select(o.moment_b, o.moment_a, lower);
             touching += 1.0;
+            if (sampling && lower) {
+                sampled += slab_share(i, j, o.force);
+            }
         }
         spr[slot(i, k)] = vec4<f32>(o.spring, select(0.0, 1.0, o.in_contact));
         if (epsd()) {
@@ -888,6 +934,9 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     frc[i] = vec4<f32>(f, moment);
     trq[i] = vec4<f32>(tq, touching);
+    if (sampling) {
+        slab_sums[i] = vec4<f32>(sampled, 0.0);
+    }
 }
 
 // ---- loads on the moving geometries ----

@@ -1,9 +1,13 @@
 //! What the shear-box test needs of the GPU: a still geometry held as a moving mesh (its loads
-//! recorded), and a motion replaced during the run (`GpuWorld::set_motion`, against the CPU
-//! engine's `World::set_geometry_motion`).
+//! recorded), a motion replaced during the run (`GpuWorld::set_motion`, against the CPU
+//! engine's `World::set_geometry_motion`), and a slab's contact stress sums
+//! (`GpuWorld::run_sampling_slab`, against the CPU's shear window on the CPU engine's
+//! contacts, and a column's known answer).
 
 use crate::common;
-use crate::parity::{ball, mass, plane, resting_overlap, table, BALL, WALL};
+use crate::parity::{
+    ball, e_star_same, e_star_wall, mass, plane, resting_overlap, table, BALL, WALL,
+};
 
 use repose_engine::contact::RollingModel;
 use repose_engine::integrate::Integrator;
@@ -11,7 +15,7 @@ use repose_engine::kinematics::Motion;
 use repose_engine::math::{Pose, Vec3};
 use repose_engine::neighbor::Domain;
 use repose_engine::world::{Geometry, GeometryId, World, WorldConfig};
-use repose_engine_gpu::{Capacity, GpuError, GpuWorld, MAX_MOVERS};
+use repose_engine_gpu::{Capacity, GpuError, GpuWorld, Slab, MAX_MOVERS};
 
 const R: f64 = 0.005;
 const G: f64 = 9.81;
@@ -167,4 +171,190 @@ fn a_plate_set_moving_during_the_run_drags_a_sphere_as_on_the_cpu_engine() {
         (load - load_cpu).norm() < 1e-3 * load_cpu.norm(),
         "{load:?} vs {load_cpu:?}"
     );
+}
+
+/// The shear window's sum (`Window::add` in `experiments/src/shear/window.rs`) over the CPU
+/// engine's contacts now, in f64: Σ force on the upper grain × branch length inside the slab.
+fn window_sum(world: &World, slab: &Slab) -> [f64; 3] {
+    let x = &world.particles().position;
+    let mut sum = [0.0; 3];
+    world.for_each_contact(|c| {
+        let xi = x[c.i];
+        let mid = [xi.x + 0.5 * c.branch.x, xi.y + 0.5 * c.branch.y];
+        if mid[0] < slab.x[0] || mid[0] >= slab.x[1] || mid[1] < slab.y[0] || mid[1] >= slab.y[1] {
+            return;
+        }
+        let zj = xi.z + c.branch.z;
+        let inside = (xi.z.max(zj).min(slab.z[1]) - xi.z.min(zj).max(slab.z[0])).max(0.0);
+        if inside == 0.0 {
+            return;
+        }
+        let on_upper = if c.branch.z >= 0.0 {
+            c.force_on_j
+        } else {
+            -c.force_on_j
+        };
+        for (s, f) in sum.iter_mut().zip(on_upper.iter()) {
+            *s += f * inside;
+        }
+    });
+    sum
+}
+
+/// A small pile on the plate (velocity Verlet, restitution 0.1), stepped alike on both
+/// engines: a pyramid of four spheres and one set into their pocket, and a column of three,
+/// all touching at zero overlap, settling for 150 steps, then sampled every 15 steps, ten
+/// times. The slab runs through the pyramid's four upper contacts and the column's lowest one;
+/// the window holds two of the four (the top's, on +x) and the column. Each GPU sum is the CPU
+/// window's over the CPU engine's contacts to 2e-3 of its norm (measured on lavapipe: at worst
+/// 7.3e-4; f32 positions resolve ~1e-9 m of 1e-6 m overlaps in a pile still ringing) and its
+/// shear component to 1e-2 of itself (at worst 1.3e-3). The plate's loads are recorded while
+/// sampling, and the same run again gives the same bits.
+#[test]
+fn a_slab_sum_over_a_small_pile_is_the_cpu_windows() {
+    let Some(gpu) = common::gpu() else { return };
+    let mut cpu = box_world(0.1, 0.5, Integrator::VelocityVerlet);
+    let z = resting_height();
+    // The pyramid, its base's centres 2R apart around (-0.01, 0).
+    let centre = Vec3::new(-0.01, 0.0, z);
+    for (dx, dy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
+        add_ball(&mut cpu, centre + Vec3::new(dx * R, dy * R, 0.0));
+    }
+    add_ball(&mut cpu, centre + Vec3::new(0.0, 0.0, 2f64.sqrt() * R));
+    // The column at (0.012, 0.003).
+    for k in 0..3 {
+        add_ball(&mut cpu, Vec3::new(0.012, 0.003, z + 2.0 * R * k as f64));
+    }
+    let slab = Slab {
+        x: [centre.x, 0.03],
+        y: [-0.03, 0.03],
+        z: [1.5 * R, 2.8 * R],
+    };
+    let (settle, every, count) = (150, 15, 10);
+    let sample = |world: &World| {
+        let mut gpu_world = GpuWorld::with_movers(&gpu, world, Capacity::of(world), &[0]).unwrap();
+        gpu_world.run(settle).unwrap();
+        let sums: Vec<[f64; 3]> = (0..count)
+            .map(|_| gpu_world.run_sampling_slab(every, &slab).unwrap())
+            .collect();
+        let loads = gpu_world.geometry_series(0).unwrap().len() as u64;
+        (sums, loads)
+    };
+    let (sums, loads) = sample(&cpu);
+    let again = sample(&cpu).0;
+    assert!(
+        sums.iter()
+            .zip(&again)
+            .all(|(a, b)| a.map(f64::to_bits) == b.map(f64::to_bits)),
+        "two runs on one adapter differ"
+    );
+    assert_eq!(
+        loads,
+        settle + every * count,
+        "the plate's loads, every step"
+    );
+    for _ in 0..settle {
+        cpu.step();
+    }
+    let (mut worst, mut worst_shear) = (0.0f64, 0.0f64);
+    for sum in &sums {
+        for _ in 0..every {
+            cpu.step();
+        }
+        let expected = window_sum(&cpu, &slab);
+        let norm = expected.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let error = (0..3)
+            .map(|a| (sum[a] - expected[a]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / norm;
+        let shear = (sum[0] / expected[0] - 1.0).abs();
+        (worst, worst_shear) = (worst.max(error), worst_shear.max(shear));
+        // The top is pushed up and back (-x) by the two base spheres on +x.
+        assert!(
+            expected[2] > 0.0 && expected[0] < -0.02 * expected[2],
+            "{expected:?}"
+        );
+        assert!(
+            error < 2e-3 && shear < 1e-2,
+            "at {:.5} s: GPU {sum:?} N m, CPU {expected:?} N m",
+            cpu.time()
+        );
+    }
+    println!(
+        "pile: {count} samples, GPU against CPU: at worst {worst:.2e} of the norm, the shear \
+         component {worst_shear:.2e} of itself; the last GPU {:?} N m",
+        sums.last().unwrap()
+    );
+}
+
+/// A column of four spheres resting on the plate, at their Hertz overlaps: a slab 2 mm thick
+/// around the second contact from the bottom, inside the branch of that contact only, sums the
+/// weight of the two spheres above it times the slab's thickness, with no shear; a window
+/// beside the column sums nothing. Bad slabs and no steps are refused.
+#[test]
+fn a_slab_across_a_resting_column_sums_the_weight_above_times_its_thickness() {
+    let Some(gpu) = common::gpu() else { return };
+    let mut w = box_world(0.5, 0.5, Integrator::SymplecticEuler);
+    let n = 4;
+    let weight = mass(R) * G;
+    let hertz_overlap = |force: f64, e_star: f64, r_star: f64| {
+        (force / (4.0 / 3.0 * e_star * r_star.sqrt())).powf(2.0 / 3.0)
+    };
+    let mut z = R - hertz_overlap(n as f64 * weight, e_star_wall(), R);
+    let mut contact = 0.0;
+    for k in 0..n {
+        add_ball(&mut w, Vec3::new(0.002, -0.001, z));
+        let above = (n - 1 - k) as f64 * weight;
+        let next = z + 2.0 * R - hertz_overlap(above, e_star_same(), R / 2.0);
+        if k == 1 {
+            contact = 0.5 * (z + next);
+        }
+        z = next;
+    }
+    let mut world = GpuWorld::new(&gpu, &w).unwrap();
+    let half = 1e-3;
+    let slab = Slab {
+        x: [-0.03, 0.03],
+        y: [-0.03, 0.03],
+        z: [contact - half, contact + half],
+    };
+    let sum = world.run_sampling_slab(20, &slab).unwrap();
+    let expected = 2.0 * weight * 2.0 * half;
+    println!(
+        "column: {sum:?} N m, 2 m g x thickness {expected:.6e} N m, error {:.2e}",
+        sum[2] / expected - 1.0
+    );
+    assert!((sum[2] / expected - 1.0).abs() < 1e-3, "{sum:?}");
+    assert!(sum[0].abs() + sum[1].abs() < 1e-6 * expected, "{sum:?}");
+    let beside = Slab {
+        x: [0.0021, 0.03],
+        ..slab
+    };
+    let below = Slab {
+        z: [0.0, 0.5 * R],
+        ..slab
+    };
+    for other in [beside, below] {
+        assert_eq!(world.run_sampling_slab(1, &other).unwrap(), [0.0; 3]);
+    }
+    for bad in [
+        Slab {
+            z: [f64::NAN, 0.01],
+            ..slab
+        },
+        Slab {
+            x: [0.01, -0.01],
+            ..slab
+        },
+    ] {
+        assert!(matches!(
+            world.run_sampling_slab(1, &bad),
+            Err(GpuError::Invalid(_))
+        ));
+    }
+    assert!(matches!(
+        world.run_sampling_slab(0, &slab),
+        Err(GpuError::Invalid(_))
+    ));
 }
