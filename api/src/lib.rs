@@ -107,7 +107,7 @@ pub struct ExperimentTemplate {
     /// Experiment type understood by the workers: `aor`, `drill`, `shear`, and the test aids
     /// `table_lookup` and `formula`.
     pub kind: String,
-    /// The engine the runs need: `cpu` (the default) or `gpu` (`aor` and `drill` run on it).
+    /// The engine the runs need: `cpu` (the default) or `gpu` (`aor`, `drill` and `shear` run on it).
     /// GPU jobs go only to workers that opened a GPU adapter (`repose worker --gpu`).
     #[serde(default, skip_serializing_if = "BackendKind::is_cpu")]
     pub backend: BackendKind,

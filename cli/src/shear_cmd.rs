@@ -7,12 +7,14 @@
 //! stress against displacement per normal stress), `mohr_coulomb.svg` (the lines and points)
 //! and `shear_curves.csv` into `--out`. With `--bed-cache DIR` the settled sample is stored in
 //! DIR under its key (`<key>.json`, the drilling bed store) and reused by later runs with the
-//! same sample parameters.
+//! same sample parameters. `--backend gpu` settles the sample and shears it on the GPU engine
+//! (its sample key ends in `-gpu`).
 
+use crate::backend::Backend;
 use crate::local_run::{run_on_bed_and_write, RunFiles};
 use anyhow::Result;
 use clap::Args;
-use repose_experiments::shear::{ShearResult, ShearRun, ShearSpec};
+use repose_experiments::shear::{ShearOn, ShearResult, ShearRun, ShearSpec};
 use repose_experiments::Spec;
 use std::path::PathBuf;
 
@@ -40,6 +42,10 @@ pub struct ShearArgs {
     /// Worker threads (default: all cores). Results are identical for any count.
     #[arg(long, env = "REPOSE_THREADS")]
     pub threads: Option<usize>,
+    /// The engine: `cpu` (the reference) or `gpu` (the GPU engine; the sample is settled there
+    /// too). Without a GPU adapter `gpu` is an error, never a fall-back to the CPU.
+    #[arg(long, value_enum, default_value = "cpu")]
+    pub backend: Backend,
     /// Print the effective spec (after --preset/--spec/--set) as JSON and exit.
     #[arg(long)]
     pub print_spec: bool,
@@ -62,8 +68,12 @@ pub fn run(args: &ShearArgs) -> Result<()> {
         return Ok(());
     }
     let out = args.out.as_ref().expect("clap requires --out");
+    let gpu = crate::backend::open_gpu(args.backend)?;
     run_on_bed_and_write(
-        &spec,
+        &ShearOn {
+            spec: &spec,
+            engine: crate::backend::engine(gpu.as_ref()),
+        },
         out,
         args.bed_cache.as_deref(),
         args.threads,

@@ -158,7 +158,7 @@ impl ExperimentSpec {
         }
     }
 
-    /// Ok if the `backend` engine runs this spec (on the GPU: every `aor` and `drill` spec);
+    /// Ok if the `backend` engine runs this spec (on the GPU: every `aor`, `drill` and `shear` spec);
     /// else [`ExperimentError::Unsupported`], naming what it lacks.
     /// A job server asks at submission, before any worker opens a GPU.
     pub fn check_backend(&self, backend: BackendKind) -> Result<(), ExperimentError> {

@@ -2,9 +2,10 @@
 //! [`Backend::advance`] (its sources are served inside the step), so a run loop driving it
 //! sees every step, exactly as one that steps the world itself.
 
+use repose_engine::kinematics::Motion;
 use repose_engine::world::{Geometry, GeometryId, GeometrySample, World};
 
-use super::{first_factory, Backend, BackendError, FactoryBooks, Grains};
+use super::{first_factory, Backend, BackendError, FactoryBooks, Grains, PlaneStress, Window};
 
 /// The CPU engine's [`World`] as a [`Backend`].
 #[derive(Debug)]
@@ -66,6 +67,24 @@ impl Backend for CpuBackend {
 
     fn geometry_series(&mut self, id: GeometryId) -> Result<Vec<GeometrySample>, BackendError> {
         Ok(self.world.geometry_series(id).to_vec())
+    }
+
+    fn clear_geometry_series(&mut self) {
+        self.world.clear_geometry_series();
+    }
+
+    fn set_geometry_motion(&mut self, id: GeometryId, motion: Motion) -> Result<(), BackendError> {
+        self.world.set_geometry_motion(id, motion);
+        Ok(())
+    }
+
+    fn advance_sampling(
+        &mut self,
+        steps: u64,
+        window: &Window,
+    ) -> Result<PlaneStress, BackendError> {
+        self.world.run(steps.max(1));
+        Ok(window.stress_in(&self.world))
     }
 
     fn checkpoint_world(&self) -> Option<&World> {

@@ -20,14 +20,15 @@ use std::collections::HashMap;
 
 use rand_chacha::ChaCha8Rng;
 use repose_engine::factory::{NewParticle, ParticleSource};
+use repose_engine::kinematics::Motion;
 use repose_engine::material::MaterialId;
 use repose_engine::math::Vec3;
 use repose_engine::neighbor::Domain;
 use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, GeometryId, GeometrySample, World};
-use repose_engine_gpu::{Capacity, Gpu, GpuWorld};
+use repose_engine_gpu::{Capacity, Gpu, GpuWorld, Slab};
 
-use super::{first_factory, Backend, BackendError, FactoryBooks, Grains};
+use super::{first_factory, Backend, BackendError, FactoryBooks, Grains, PlaneStress, Window};
 
 /// Steps between two servings of the particle sources (each one that places grains reads the
 /// grains back: a pipeline stall). 100 steps of the `fast` funnel are 3.7 ms, in which the
@@ -181,13 +182,19 @@ fn minimum_image(domain: &Domain, mut d: Vec3) -> Vec3 {
 }
 
 impl GpuBackend {
-    /// Uploads `world` to `gpu` and serves its sources for the first step. Errors: a scene that
-    /// does not fit the adapter (its capacities, its limits).
-    pub fn new(gpu: &Gpu, mut world: World) -> Result<GpuBackend, BackendError> {
+    /// Uploads `world` to `gpu`, the geometries `movable` as moving meshes whatever their
+    /// motion now ([`GpuWorld::with_movers`]), and serves its sources for the first step.
+    /// Errors: a scene that does not fit the adapter (its capacities, its limits).
+    pub fn new(
+        gpu: &Gpu,
+        mut world: World,
+        movable: &[GeometryId],
+    ) -> Result<GpuBackend, BackendError> {
         let sources = world.take_sources();
         let rng = world.rng().clone();
         let capacity = capacity(&world, &sources);
-        let gpu_world = GpuWorld::with_capacity(gpu, &world, capacity)?;
+        let movable: Vec<usize> = movable.iter().map(|id| id.0 as usize).collect();
+        let gpu_world = GpuWorld::with_movers(gpu, &world, capacity, &movable)?;
         let p = world.particles();
         let mut backend = GpuBackend {
             gpu_world,
@@ -308,6 +315,16 @@ impl GpuBackend {
         Ok(())
     }
 
+    /// Notes `steps` steps taken and serves the sources when they fall due.
+    fn served_after(&mut self, steps: u64) -> Result<(), BackendError> {
+        self.since_serve += steps;
+        if self.since_serve == SERVE_EVERY {
+            self.since_serve = 0;
+            self.serve()?;
+        }
+        Ok(())
+    }
+
     /// The grains now, read back once per step.
     fn snapshot(&mut self) -> Result<&Snapshot, BackendError> {
         let steps = self.gpu_world.steps();
@@ -353,12 +370,32 @@ impl Backend for GpuBackend {
     fn advance(&mut self, max_steps: u64) -> Result<u64, BackendError> {
         let steps = max_steps.clamp(1, SERVE_EVERY - self.since_serve);
         self.gpu_world.run(steps)?;
-        self.since_serve += steps;
-        if self.since_serve == SERVE_EVERY {
-            self.since_serve = 0;
-            self.serve()?;
-        }
+        self.served_after(steps)?;
         Ok(steps)
+    }
+
+    fn advance_sampling(
+        &mut self,
+        steps: u64,
+        window: &Window,
+    ) -> Result<PlaneStress, BackendError> {
+        let slab = Slab {
+            x: window.x,
+            y: window.y,
+            z: window.z,
+        };
+        let mut left = steps.max(1);
+        loop {
+            let chunk = left.min(SERVE_EVERY - self.since_serve);
+            if chunk == left {
+                let sum = self.gpu_world.run_sampling_slab(chunk, &slab)?;
+                self.served_after(chunk)?;
+                return Ok(window.stress_of_sum(sum));
+            }
+            self.gpu_world.run(chunk)?;
+            self.served_after(chunk)?;
+            left -= chunk;
+        }
     }
 
     fn grains(&mut self) -> Result<Grains<'_>, BackendError> {
@@ -391,6 +428,16 @@ impl Backend for GpuBackend {
 
     fn geometry_series(&mut self, id: GeometryId) -> Result<Vec<GeometrySample>, BackendError> {
         Ok(self.gpu_world.geometry_series(id.0 as usize)?.to_vec())
+    }
+
+    fn clear_geometry_series(&mut self) {
+        self.gpu_world.clear_geometry_series();
+    }
+
+    fn set_geometry_motion(&mut self, id: GeometryId, motion: Motion) -> Result<(), BackendError> {
+        self.gpu_world.set_motion(id.0 as usize, motion.clone())?;
+        self.scene.set_geometry_motion(id, motion);
+        Ok(())
     }
 
     fn checkpoint_world(&self) -> Option<&World> {

@@ -9,13 +9,16 @@
 
 mod cpu;
 mod gpu;
+mod window;
 
 pub use cpu::CpuBackend;
 pub use gpu::GpuBackend;
 /// An opened GPU (adapter, device, queue): open once with `Gpu::open()`, share among runs.
 pub use repose_engine_gpu::Gpu;
+pub use window::{PlaneStress, Window};
 
 use repose_engine::factory::ParticleSource;
+use repose_engine::kinematics::Motion;
 use repose_engine::math::Vec3;
 use repose_engine::world::{Geometry, GeometryId, GeometrySample, World};
 
@@ -41,9 +44,20 @@ impl Engine<'_> {
     /// The backend running `world` (its particles, geometries and sources) from its present
     /// state.
     pub fn start(&self, world: World) -> Result<Box<dyn Backend>, BackendError> {
+        self.start_movable(world, &[])
+    }
+
+    /// [`Engine::start`], with the geometries `movable` (still or not) ready to be given a
+    /// motion during the run ([`Backend::set_geometry_motion`]) and to have their loads
+    /// recorded on every backend ([`Backend::geometry_series`]).
+    pub fn start_movable(
+        &self,
+        world: World,
+        movable: &[GeometryId],
+    ) -> Result<Box<dyn Backend>, BackendError> {
         Ok(match self {
             Engine::Cpu => Box::new(CpuBackend::new(world)),
-            Engine::Gpu(gpu) => Box::new(GpuBackend::new(gpu, world)?),
+            Engine::Gpu(gpu) => Box::new(GpuBackend::new(gpu, world, movable)?),
         })
     }
 
@@ -195,11 +209,29 @@ pub trait Backend {
     /// The scene's geometries, in the order added.
     fn geometries(&self) -> &[Geometry];
 
-    /// The loads recorded on geometry `id` (the CPU engine's `World::geometry_series`: every
+    /// The loads recorded on geometry `id` since the start or the last
+    /// [`Backend::clear_geometry_series`] (the CPU engine's `World::geometry_series`: every
     /// `geometry_record_interval` steps, the grains' force on it and its torque about its
-    /// reference point). The GPU records a moving geometry's only (a static one is an error
-    /// naming it).
+    /// reference point). The GPU records those of the geometries that move or were started
+    /// movable ([`Engine::start_movable`]) only; another's is an error naming it.
     fn geometry_series(&mut self, id: GeometryId) -> Result<Vec<GeometrySample>, BackendError>;
+
+    /// Forgets the loads recorded so far.
+    fn clear_geometry_series(&mut self);
+
+    /// Gives geometry `id` `motion` from now on (the CPU engine's
+    /// `World::set_geometry_motion`; a motion that continues the geometry's present pose keeps
+    /// it in place). The GPU changes the motion of a geometry that moved from the start or was
+    /// started movable ([`Engine::start_movable`]) only; another is an error naming it.
+    fn set_geometry_motion(&mut self, id: GeometryId, motion: Motion) -> Result<(), BackendError>;
+
+    /// Advances exactly `steps` steps (at least one) and returns `window`'s stresses from the
+    /// particle contacts of the last step's force evaluation ([`Window`]).
+    fn advance_sampling(
+        &mut self,
+        steps: u64,
+        window: &Window,
+    ) -> Result<PlaneStress, BackendError>;
 
     /// The CPU world a checkpoint keeps, if this backend's run can be checkpointed and
     /// continued bit for bit (the CPU engine's); none otherwise.
@@ -210,6 +242,21 @@ pub trait Backend {
     /// sources' books copied in, e.g. to write the grains out (it is not a continuation of the
     /// backend's trajectory).
     fn into_world(self: Box<Self>) -> Result<World, BackendError>;
+}
+
+/// Advances `backend` exactly `steps` steps (none: none), in as few calls as it takes.
+pub(crate) fn advance_exactly(backend: &mut dyn Backend, steps: u64) -> Result<(), BackendError> {
+    let mut left = steps;
+    while left > 0 {
+        left -= backend.advance(left)?;
+    }
+    Ok(())
+}
+
+/// The time after `steps` steps of `dt` from `t`, as the engines advance it (one addition a
+/// step).
+pub(crate) fn time_after(t: f64, dt: f64, steps: u64) -> f64 {
+    (0..steps).fold(t, |t, _| t + dt)
 }
 
 /// Steps (at least one, at most `cap`) until the time, advanced from `t` by `dt` a step as

@@ -22,8 +22,8 @@ mod measure;
 mod picture;
 mod run;
 mod spec;
-mod window;
 
+pub use crate::backend::{PlaneStress, Window};
 pub use experiment::Shear;
 pub use measure::{
     mohr_coulomb_fit, running_mean, shear_strength, MohrCoulomb, ShearMeasureError, ShearPoint,
@@ -31,11 +31,10 @@ pub use measure::{
 };
 pub use picture::{curves_svg, strength_svg};
 pub use run::{
-    build_sample, run_shear, run_shear_on_bed, sample_key, Control, Progress, ShearError,
+    build_sample, run_shear, run_shear_on_bed, sample_key, Control, Progress, ShearError, ShearOn,
     ShearResult, ShearRun, ShearSample, ShearStage, ShearStatus,
 };
 pub use spec::{
     BoxSpec, ConsolidationSpec, SampleSpec, ServoSpec, ShearMotionSpec, ShearSpec, SpecError,
     WindowSpec, PRESETS,
 };
-pub use window::{PlaneStress, Window};

@@ -36,8 +36,9 @@ use super::measure::{
 };
 use super::picture::{curves_svg, strength_svg};
 use super::spec::{ShearSpec, SpecError};
-use super::window::{PlaneStress, Window};
-use crate::backend::Grains;
+use crate::backend::{
+    advance_exactly, time_after, Backend, BackendError, Engine, PlaneStress, Window,
+};
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
     kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, OnBed,
@@ -62,6 +63,9 @@ pub enum ShearError {
     /// `wall_time_cap` ran out.
     #[error("wall_time_cap ({cap_s} s) reached while {phase}")]
     WallTimeCap { phase: &'static str, cap_s: f64 },
+    /// The engine could not run the scene or stopped (a GPU failure).
+    #[error(transparent)]
+    Backend(#[from] BackendError),
 }
 
 impl From<BedError> for ShearError {
@@ -74,7 +78,7 @@ impl From<BedError> for ShearError {
                 phase: "building the sample",
                 cap_s,
             },
-            BedError::Backend(e) => build_error("engine", e),
+            BedError::Backend(e) => ShearError::Backend(e),
         }
     }
 }
@@ -340,13 +344,40 @@ pub fn sample_key(spec: &ShearSpec) -> String {
     spec.bed_recipe().key()
 }
 
-/// Pours and settles the sample of `spec` (the drilling bed recipe in the closed box).
+/// Pours and settles the sample of `spec` (the drilling bed recipe in the closed box) on the
+/// CPU engine.
 pub fn build_sample(
     spec: &ShearSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<SettledBed, ShearError> {
+    ShearOn::cpu(spec).build_bed(progress)
+}
+
+/// A shear spec on an engine: its sample is settled and sheared there. The sample's key names
+/// the engine ([`BedRecipe::key_on`](crate::soil::BedRecipe::key_on)), so a run never shears
+/// a sample another engine settled.
+#[derive(Debug, Clone, Copy)]
+pub struct ShearOn<'a> {
+    pub spec: &'a ShearSpec,
+    pub engine: Engine<'a>,
+}
+
+impl<'a> ShearOn<'a> {
+    pub fn cpu(spec: &'a ShearSpec) -> ShearOn<'a> {
+        ShearOn {
+            spec,
+            engine: Engine::Cpu,
+        }
+    }
+}
+
+fn build_sample_on(
+    engine: Engine<'_>,
+    spec: &ShearSpec,
+    progress: &mut dyn FnMut(Progress<'_>) -> Control,
+) -> Result<SettledBed, ShearError> {
     spec.validate()?;
-    Ok(spec.bed_recipe().build(&mut |p| {
+    Ok(spec.bed_recipe().build_on(engine, &mut |p| {
         progress(Progress {
             fraction: p.fraction,
             phase: "sample",
@@ -356,41 +387,41 @@ pub fn build_sample(
     })?)
 }
 
-/// Builds the sample and runs every stage on it ([`run_on_bed`] without a store). The sample
-/// takes the first fifth of the progress fraction.
+/// Builds the sample and runs every stage on it ([`run_on_bed`] without a store), on the CPU
+/// engine. The sample takes the first fifth of the progress fraction.
 pub fn run_shear(
     spec: &ShearSpec,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
-    run_on_bed(spec, &mut NoBedStore, progress)
+    run_on_bed(&ShearOn::cpu(spec), &mut NoBedStore, progress)
 }
 
 /// Runs every stage on a sample built earlier by [`build_sample`] for a spec with the same
-/// [`sample_key`] (e.g. from a cache). Same outcome, bit for bit, as [`run_shear`], but for
-/// `bed.reused` (true here) and the wall time (without the sample's).
+/// [`sample_key`] (e.g. from a cache), on the CPU engine. Same outcome, bit for bit, as
+/// [`run_shear`], but for `bed.reused` (true here) and the wall time (without the sample's).
 pub fn run_shear_on_bed(
     spec: &ShearSpec,
     bed: SettledBed,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
 ) -> Result<ShearRun, ShearError> {
-    spec.run_on_bed(bed, progress)
+    ShearOn::cpu(spec).run_on_bed(bed, progress)
 }
 
 /// The shear test runs on a settled sample, built in the first fifth of the progress.
-impl OnBed for ShearSpec {
+impl OnBed for ShearOn<'_> {
     type Run = ShearRun;
     type Error = ShearError;
     const BED_SHARE: f64 = 0.2;
 
     fn bed_key(&self) -> String {
-        sample_key(self)
+        self.spec.bed_recipe().key_on(self.engine.kind())
     }
 
     fn build_bed(
         &self,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<SettledBed, ShearError> {
-        build_sample(self, progress)
+        build_sample_on(self.engine, self.spec, progress)
     }
 
     fn run_on_matching_bed(
@@ -398,7 +429,7 @@ impl OnBed for ShearSpec {
         bed: SettledBed,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<ShearRun, ShearError> {
-        shear(self, bed, progress)
+        shear(self.engine, self.spec, bed, progress)
     }
 
     fn bed_of(run: &mut ShearRun) -> (&mut BedInfo, &mut f64) {
@@ -406,9 +437,10 @@ impl OnBed for ShearSpec {
     }
 }
 
-/// Runs every stage on `bed` (handed in: `bed.reused` is true until [`run_on_bed`] says
-/// otherwise).
+/// Runs every stage on `bed` on `engine` (handed in: `bed.reused` is true until
+/// [`run_on_bed`] says otherwise).
 fn shear(
+    engine: Engine<'_>,
     spec: &ShearSpec,
     bed: SettledBed,
     progress: &mut dyn FnMut(Progress<'_>) -> Control,
@@ -426,7 +458,7 @@ fn shear(
     let mut stages = Vec::with_capacity(n);
     let (mut simulated, mut steps) = (0.0, 0);
     for (k, &sigma) in spec.normal_stresses_kpa.iter().enumerate() {
-        let stage = run_stage(spec, &s, &bed, sigma, started, &mut |p| {
+        let stage = run_stage(engine, spec, &s, &bed, sigma, started, &mut |p| {
             progress(Progress {
                 fraction: (k as f64 + p.fraction) / n as f64,
                 ..p
@@ -543,12 +575,12 @@ fn lower_half(side: f64, plane_z: f64, ledge: f64) -> Result<TriMesh, ShearError
 }
 
 /// Mean force on `id` over the samples recorded since the series were last cleared.
-fn mean_force(world: &World, id: GeometryId) -> Vec3 {
-    let series = world.geometry_series(id);
+fn mean_force(backend: &mut dyn Backend, id: GeometryId) -> Result<Vec3, ShearError> {
+    let series = backend.geometry_series(id)?;
     if series.is_empty() {
-        return Vec3::zeros();
+        return Ok(Vec3::zeros());
     }
-    series.iter().map(|s| s.force).sum::<Vec3>() / series.len() as f64
+    Ok(series.iter().map(|s| s.force).sum::<Vec3>() / series.len() as f64)
 }
 
 /// A stage's progress: consolidation is the first 30 % (against its time cap), shearing the
@@ -562,6 +594,7 @@ const WINDOW_SAMPLES_PER_INTERVAL: u64 = 4;
 const WINDOW_SMOOTHING_DIVISOR: usize = 20;
 
 fn run_stage(
+    engine: Engine<'_>,
     spec: &ShearSpec,
     s: &Setup,
     bed: &SettledBed,
@@ -645,6 +678,8 @@ fn run_stage(
     }
 
     let particles = world.particles().len();
+    let gravity = world.config().gravity.z;
+    let backend = &mut *engine.start_movable(world, &[lower, upper, lid])?;
     let servo = &spec.servo;
     let steps_per_control = ((servo.interval / s.dt).round() as u64).max(1);
     let control_time = steps_per_control as f64 * s.dt;
@@ -656,30 +691,27 @@ fn run_stage(
     let lid_speed = |force: f64| {
         (servo.gain * (force - target) / target).clamp(-servo.max_speed, servo.max_speed)
     };
-    let set_motion = |world: &mut World, id: GeometryId, velocity: Vec3| {
-        let t = world.time();
-        let pose = world.geometry(id).motion.pose_at(t);
-        let motion = Motion::translating(pose, velocity, t).map_err(|e| build_error("servo", e))?;
-        world.set_geometry_motion(id, motion);
+    let pose_of = |backend: &dyn Backend, id: GeometryId| {
+        backend.geometries()[id.0 as usize]
+            .motion
+            .pose_at(backend.time())
+    };
+    let set_motion = |backend: &mut dyn Backend, id: GeometryId, velocity: Vec3| {
+        let motion = Motion::translating(pose_of(backend, id), velocity, backend.time())
+            .map_err(|e| build_error("servo", e))?;
+        backend.set_geometry_motion(id, motion)?;
         Ok::<(), ShearError>(())
     };
-    let lid_z = |world: &World| {
-        world
-            .geometry(lid)
-            .motion
-            .pose_at(world.time())
-            .translation
-            .z
-    };
-    let check = |world: &World,
+    let lid_z = |backend: &dyn Backend| pose_of(backend, lid).translation.z;
+    let check = |backend: &mut dyn Backend,
                  phase: &'static str,
                  fraction: f64,
                  progress: &mut dyn FnMut(Progress<'_>) -> Control| {
         if progress(Progress {
             fraction,
             phase,
-            time: world.time(),
-            particles: world.particles().len(),
+            time: backend.time(),
+            particles: backend.grain_count()?,
         }) == Control::Cancel
         {
             return Err(ShearError::Cancelled);
@@ -694,22 +726,22 @@ fn run_stage(
 
     // Consolidation: the lid comes down and holds the target force.
     let c = &spec.consolidation;
-    set_motion(&mut world, lid, Vec3::new(0.0, 0.0, -servo.max_speed))?;
-    world.clear_geometry_series();
+    set_motion(backend, lid, Vec3::new(0.0, 0.0, -servo.max_speed))?;
+    backend.clear_geometry_series();
     let mut held = 0.0;
     let mut force = 0.0;
     let consolidated = loop {
-        world.run(steps_per_control);
-        force += smoothing * (mean_force(&world, lid).z - force);
-        world.clear_geometry_series();
+        advance_exactly(backend, steps_per_control)?;
+        force += smoothing * (mean_force(backend, lid)?.z - force);
+        backend.clear_geometry_series();
         if ((force - target) / target).abs() <= c.tolerance {
             held += control_time;
         } else {
             held = 0.0;
         }
-        let t = world.time();
+        let t = backend.time();
         check(
-            &world,
+            backend,
             "consolidating",
             CONSOLIDATION_SHARE * (t / c.time_cap).min(1.0),
             progress,
@@ -720,22 +752,22 @@ fn run_stage(
         if t >= c.time_cap {
             break false;
         }
-        set_motion(&mut world, lid, Vec3::new(0.0, 0.0, lid_speed(force)))?;
+        set_motion(backend, lid, Vec3::new(0.0, 0.0, lid_speed(force)))?;
     };
-    let consolidation_time = world.time();
-    let kinetic_energy_ratio = kinetic_energy_ratio(&Grains::of(&world));
+    let consolidation_time = backend.time();
+    let grains = backend.grains()?;
+    let kinetic_energy_ratio = kinetic_energy_ratio(&grains);
 
     // Shearing: the upper half and the lid move along +x; the lid keeps the stress.
-    let p = world.particles();
-    let above: f64 = (0..p.len())
-        .filter(|&k| p.position[k].z > h)
-        .map(|k| p.mass[k])
+    let above: f64 = (0..grains.len())
+        .filter(|&k| grains.position[k].z > h)
+        .map(|k| grains.mass[k])
         .sum();
-    let weight_above = above * world.config().gravity.z.abs();
+    let weight_above = above * gravity.abs();
     let v = spec.shear.speed;
-    let t_start = world.time();
-    let z_start = lid_z(&world);
-    set_motion(&mut world, upper, Vec3::new(v, 0.0, 0.0))?;
+    let t_start = backend.time();
+    let z_start = lid_z(backend);
+    set_motion(backend, upper, Vec3::new(v, 0.0, 0.0))?;
     let mut series = Vec::new();
     let mut plane_force = 0.0;
     // The soil's own stresses (`Window`): the window follows the part of the plane the two
@@ -750,37 +782,38 @@ fn run_stage(
     };
     let per_sample = (steps_per_control / WINDOW_SAMPLES_PER_INTERVAL).max(1);
     loop {
-        set_motion(&mut world, lid, Vec3::new(v, 0.0, lid_speed(force)))?;
+        set_motion(backend, lid, Vec3::new(v, 0.0, lid_speed(force)))?;
         let (mut ran, mut samples, mut inner) = (0, 0.0, PlaneStress::default());
         while ran < steps_per_control {
             let k = per_sample.min(steps_per_control - ran);
-            world.run(k);
+            // The window where it is at the sample's time, the end of these steps.
+            let end = time_after(backend.time(), backend.time_step(), k);
+            let sample = backend.advance_sampling(k, &window_at(v * (end - t_start)))?;
             ran += k;
-            let s = window_at(v * (world.time() - t_start)).stress_in(&world);
-            inner.normal_pa += s.normal_pa;
-            inner.shear_pa += s.shear_pa;
+            inner.normal_pa += sample.normal_pa;
+            inner.shear_pa += sample.shear_pa;
             samples += 1.0;
         }
-        let lid_force = mean_force(&world, lid).z;
+        let lid_force = mean_force(backend, lid)?.z;
         force += smoothing * (lid_force - force);
-        let shear_force = mean_force(&world, lower).x;
+        let shear_force = mean_force(backend, lower)?.x;
         // What the upper half's walls carry by friction (negative: they hold the soil up).
-        let wall_load = mean_force(&world, upper).z;
+        let wall_load = mean_force(backend, upper)?.z;
         plane_force += lid_force + wall_load + weight_above;
-        world.clear_geometry_series();
-        let t = world.time();
+        backend.clear_geometry_series();
+        let t = backend.time();
         let displacement = v * (t - t_start - 0.5 * control_time);
         series.push(ShearSample {
             displacement_mm: 1e3 * displacement,
             shear_stress_kpa: 1e-3 * shear_force / area,
             lid_stress_kpa: 1e-3 * lid_force / area,
-            lid_z_mm: 1e3 * lid_z(&world),
+            lid_z_mm: 1e3 * lid_z(backend),
             window_shear_kpa: 1e-3 * inner.shear_pa / samples,
             window_normal_kpa: 1e-3 * inner.normal_pa / samples,
         });
         let done = v * (t - t_start) >= spec.shear.displacement;
         check(
-            &world,
+            backend,
             "shearing",
             CONSOLIDATION_SHARE
                 + (1.0 - CONSOLIDATION_SHARE)
@@ -833,11 +866,11 @@ fn run_stage(
         window_peak_kpa: 1e-3 * window.peak_pa,
         window_residual_kpa: 1e-3 * window.residual_pa,
         mean_lid_stress_kpa: mean_lid,
-        dilation_mm: 1e3 * (lid_z(&world) - z_start),
+        dilation_mm: 1e3 * (lid_z(backend) - z_start),
         kinetic_energy_ratio,
         particles,
-        escaped: world.removed_count(),
-        steps: world.steps(),
+        escaped: backend.removed_count()?,
+        steps: backend.steps(),
         series,
     })
 }

@@ -16,5 +16,6 @@ mod drill_spec;
 #[allow(dead_code)]
 #[path = "../../../engine-gpu/tests/gpu/common/mod.rs"]
 mod gpu_common;
+mod shear_gpu;
 mod shear_run;
 mod shear_spec;

@@ -1,4 +1,5 @@
-//! The stresses on the shear plane inside the sample, away from the box's walls.
+//! The stresses on the shear plane inside the sample, away from the box's walls: a
+//! measurement every backend supplies ([`Backend::advance_sampling`](super::Backend::advance_sampling)).
 //!
 //! The box's walls take part in what the box's forces measure: the upper half's walls drag and
 //! plough the grains next to them, and that share of the force grows with the walls' area
@@ -77,6 +78,16 @@ impl Window {
         };
         sum.normal_pa += on_upper.z * inside;
         sum.shear_pa -= on_upper.x * inside;
+    }
+
+    /// The stresses from the sum over the contacts of (the force on each pair's upper grain)
+    /// × (the length of its branch's vertical extent inside the slab), N·m, as a GPU sums it:
+    /// the same as [`Window::stress`] of those contacts.
+    pub fn stress_of_sum(&self, sum: [f64; 3]) -> PlaneStress {
+        self.mean(PlaneStress {
+            normal_pa: sum[2],
+            shear_pa: -sum[0],
+        })
     }
 
     fn mean(&self, sum: PlaneStress) -> PlaneStress {
