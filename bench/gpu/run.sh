@@ -13,7 +13,8 @@
 # each (default 1). BENCH: run the engine benchmark first (default 1). TESTS: a test binary of
 # the GPU crate to run first, one test at a time under a limit (the analytic checks on this
 # adapter; build it with `cargo test --release -p repose-engine-gpu --test gpu --no-run` and
-# strip it). DRILL: drill the `fast` bed on the GPU after the benchmark (default 1). BUDGET_S:
+# strip it). DRILL: drill the `fast` bed on the GPU after the benchmark (default 1). SHEAR: the
+# `fast` shear test on the GPU after that (sample and three stages; default 1). BUDGET_S:
 # the seconds the whole script may take; `fine` gets what is left. Every figure is printed; the
 # runs' result.json files are under $WORK (default /tmp/repose-gpu).
 set -u
@@ -23,6 +24,7 @@ CPU_SEEDS=${CPU_SEEDS:-1}
 BENCH=${BENCH:-1}
 TESTS=${TESTS:-}
 DRILL=${DRILL:-1}
+SHEAR=${SHEAR:-1}
 BUDGET_S=${BUDGET_S:-560}
 WORK=${WORK:-/tmp/repose-gpu}
 T0=$(date +%s)
@@ -63,6 +65,11 @@ if [ "$DRILL" = 1 ]; then
     stamp "fast drill on the GPU (bed and drilling), alone"
     timeout -s KILL 60 "$REPOSE" drill --backend gpu --preset fast --out "$WORK/gpu-drill" --quiet >/dev/null 2>&1
     python3 -c "import json; d = json.load(open('$WORK/gpu-drill/result.json')); print({k: d.get(k) for k in ['status', 'opening_diameter_mm', 'effective_depth_mm', 'mean_feed_torque_nm', 'energy_j', 'steps', 'wall_time_s', 'engine_version']}, 'bed', d['bed']['wall_time_s'])" 2>&1
+fi
+if [ "$SHEAR" = 1 ]; then
+    stamp "fast shear test on the GPU (sample and stages), alone"
+    timeout -s KILL 90 "$REPOSE" shear --backend gpu --preset fast --out "$WORK/gpu-shear" --quiet >/dev/null 2>&1
+    python3 -c "import json; d = json.load(open('$WORK/gpu-shear/result.json')); print({k: d.get(k) for k in ['status', 'cohesion_kpa', 'friction_angle_deg', 'steps', 'wall_time_s', 'engine_version']}, 'peaks', [round(s['window_peak_kpa'], 3) for s in d['stages']], 'bed', d['bed']['wall_time_s'])" 2>&1
 fi
 stamp "fast funnel on the GPU, seeds 1-$SEEDS, one at a time"
 for s in $(seq 1 "$SEEDS"); do

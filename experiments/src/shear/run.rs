@@ -194,6 +194,11 @@ pub struct ShearResult {
     pub steps: u64,
     /// Wall time of this call (the sample included if it was built here), s.
     pub wall_time_s: f64,
+    /// The engine that computed the run: the CPU engine's version, or
+    /// `<version>+gpu:<adapter>` for the GPU backend ([`Engine::engine_version`]). None in
+    /// results written before the field existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub engine_version: Option<String>,
 }
 
 impl ShearResult {
@@ -537,6 +542,7 @@ fn shear(
         simulated_time_s: simulated,
         steps,
         wall_time_s: started.elapsed().as_secs_f64(),
+        engine_version: Some(engine.engine_version()),
     };
     Ok(ShearRun {
         result,

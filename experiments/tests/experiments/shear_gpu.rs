@@ -76,8 +76,8 @@ fn shear(engine: Engine<'_>, spec: &ShearSpec, seed: u64) -> ShearResult {
 
 /// The small test on the GPU (seed 1) against the CPU's seeds 1-3: each stage consolidates and
 /// the lid holds its stress within 5 %, and each stage's window and box peaks lie within 3.5 σ
-/// of the CPU's mean of three. The sample was settled on the GPU and says so. About a minute
-/// on lavapipe.
+/// of the CPU's mean of three. The sample was settled on the GPU and says so; the result names
+/// the adapter. About a minute on lavapipe.
 #[test]
 fn a_small_shear_test_on_the_gpu_reads_peaks_inside_the_cpu_seed_spread() {
     let Some(gpu) = gpu() else { return };
@@ -87,6 +87,15 @@ fn a_small_shear_test_on_the_gpu_reads_peaks_inside_the_cpu_seed_spread() {
         .collect();
     let on_gpu = shear(Engine::Gpu(&gpu), &spec, 1);
     assert_eq!(on_gpu.bed.key, format!("{}-gpu", cpu[0].bed.key));
+    let version = on_gpu.engine_version.as_deref().unwrap();
+    assert!(
+        version.contains(&format!("+gpu:{}", gpu.name())),
+        "{version}"
+    );
+    assert_eq!(
+        cpu[0].engine_version.as_deref(),
+        Some(repose_engine::VERSION)
+    );
     for (k, stage) in on_gpu.stages.iter().enumerate() {
         let sigma = stage.normal_stress_kpa;
         assert!(stage.consolidated, "{sigma} kPa");
