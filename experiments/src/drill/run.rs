@@ -23,7 +23,7 @@ pub use crate::progress::{Control, Progress};
 use crate::soil::advance_to_check;
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
-    BedError, BedInfo, BedMismatch, HeightField, NoBedStore, OnBed, SettledBed, SettledBy,
+    BedError, BedInfo, BedMismatch, HeightField, NoBedStore, On, OnBed, SettledBed, SettledBy,
     SplitMix, REPORT_EVERY,
 };
 
@@ -296,23 +296,8 @@ pub fn run_drill_on_bed(
     DrillOn::cpu(spec).run_on_bed(bed, progress)
 }
 
-/// A drilling spec on an engine: its bed is settled and drilled there. The bed's key names the
-/// engine ([`BedRecipe::key_on`](crate::soil::BedRecipe::key_on)), so a run never takes a
-/// bed another engine settled.
-#[derive(Debug, Clone, Copy)]
-pub struct DrillOn<'a> {
-    pub spec: &'a DrillSpec,
-    pub engine: Engine<'a>,
-}
-
-impl<'a> DrillOn<'a> {
-    pub fn cpu(spec: &'a DrillSpec) -> DrillOn<'a> {
-        DrillOn {
-            spec,
-            engine: Engine::Cpu,
-        }
-    }
-}
+/// A drilling spec on an engine: its bed is settled and drilled there ([`On`]).
+pub type DrillOn<'a> = On<'a, DrillSpec>;
 
 /// The drilling test runs on a settled bed, built in the first quarter of the progress.
 impl OnBed for DrillOn<'_> {

@@ -41,7 +41,7 @@ use crate::backend::{
 };
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
-    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, OnBed,
+    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, On, OnBed,
     SettledBed, Setup,
 };
 
@@ -358,23 +358,8 @@ pub fn build_sample(
     ShearOn::cpu(spec).build_bed(progress)
 }
 
-/// A shear spec on an engine: its sample is settled and sheared there. The sample's key names
-/// the engine ([`BedRecipe::key_on`](crate::soil::BedRecipe::key_on)), so a run never shears
-/// a sample another engine settled.
-#[derive(Debug, Clone, Copy)]
-pub struct ShearOn<'a> {
-    pub spec: &'a ShearSpec,
-    pub engine: Engine<'a>,
-}
-
-impl<'a> ShearOn<'a> {
-    pub fn cpu(spec: &'a ShearSpec) -> ShearOn<'a> {
-        ShearOn {
-            spec,
-            engine: Engine::Cpu,
-        }
-    }
-}
+/// A shear spec on an engine: its sample is settled and sheared there ([`On`]).
+pub type ShearOn<'a> = On<'a, ShearSpec>;
 
 fn build_sample_on(
     engine: Engine<'_>,

@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::recipe::BedInfo;
+use crate::backend::Engine;
 use crate::progress::{Control, Progress};
 
 /// Version of the bed recipe and of its stored form; part of every key, so a change to how
@@ -132,8 +133,6 @@ impl BedStore for NoBedStore {
     fn put(&mut self, _bed: &SettledBed) {}
 }
 
-/// An experiment that runs on a settled bed: how it names, builds and runs on its bed.
-/// [`run_on_bed`] does the rest.
 /// A bed handed to a run was built for other parameters: its key and the one the spec needs.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("the bed was built for other parameters (bed key {found}, the spec needs {expected})")]
@@ -142,6 +141,28 @@ pub struct BedMismatch {
     pub found: String,
 }
 
+/// A spec of a kind that runs on a settled bed (the drilling test's, the shear test's), on an
+/// engine: its bed is settled and used there. The bed's key names the engine
+/// ([`BedRecipe::key_on`](super::BedRecipe::key_on)), so a run never takes a bed another
+/// engine settled. Each kind implements [`OnBed`] for it.
+#[derive(Debug, Clone, Copy)]
+pub struct On<'a, S> {
+    pub spec: &'a S,
+    pub engine: Engine<'a>,
+}
+
+impl<'a, S> On<'a, S> {
+    /// `spec` on the CPU engine.
+    pub fn cpu(spec: &'a S) -> On<'a, S> {
+        On {
+            spec,
+            engine: Engine::Cpu,
+        }
+    }
+}
+
+/// An experiment that runs on a settled bed: how it names, builds and runs on its bed.
+/// [`run_on_bed`] does the rest.
 pub trait OnBed {
     /// A finished run.
     type Run;

@@ -9,6 +9,7 @@ use repose_experiments::drill::{Control, DrillOn, DrillResult, DrillSpec, DrillS
 use repose_experiments::soil::run_on_bed;
 use repose_experiments::Spec;
 
+use crate::common::assert_each_names_its_engine;
 use crate::gpu_common::gpu;
 
 /// The `fast` drill in a 70 mm bin on a 45 mm bed (about 1 000 grains) of a softer soil (E
@@ -77,15 +78,10 @@ fn a_small_drill_on_the_gpu_opens_a_hole_inside_the_cpu_seed_spread() {
         .map(|seed| drill(Engine::Cpu, &spec, seed))
         .collect();
     let on_gpu = drill(Engine::Gpu(&gpu), &spec, 1);
-    assert_eq!(on_gpu.bed.key, format!("{}-gpu", cpu[0].bed.key));
-    let version = on_gpu.engine_version.as_deref().unwrap();
-    assert!(
-        version.contains(&format!("+gpu:{}", gpu.name())),
-        "{version}"
-    );
-    assert_eq!(
-        cpu[0].engine_version.as_deref(),
-        Some(repose_engine::VERSION)
+    assert_each_names_its_engine(
+        &gpu,
+        (&on_gpu.bed.key, on_gpu.engine_version.as_deref()),
+        (&cpu[0].bed.key, cpu[0].engine_version.as_deref()),
     );
     let mean = |f: &dyn Fn(&DrillResult) -> f64| cpu.iter().map(f).sum::<f64>() / 3.0;
     for (name, std, of) in [

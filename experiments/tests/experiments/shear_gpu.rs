@@ -10,6 +10,7 @@ use repose_experiments::shear::{Control, ShearOn, ShearResult, ShearSpec, ShearS
 use repose_experiments::soil::run_on_bed;
 use repose_experiments::Spec;
 
+use crate::common::assert_each_names_its_engine;
 use crate::gpu_common::gpu;
 
 /// The `fast` preset at two normal stresses (4 and 12 kPa), sheared 3 mm, at twice the time
@@ -86,15 +87,10 @@ fn a_small_shear_test_on_the_gpu_reads_peaks_inside_the_cpu_seed_spread() {
         .map(|seed| shear(Engine::Cpu, &spec, seed))
         .collect();
     let on_gpu = shear(Engine::Gpu(&gpu), &spec, 1);
-    assert_eq!(on_gpu.bed.key, format!("{}-gpu", cpu[0].bed.key));
-    let version = on_gpu.engine_version.as_deref().unwrap();
-    assert!(
-        version.contains(&format!("+gpu:{}", gpu.name())),
-        "{version}"
-    );
-    assert_eq!(
-        cpu[0].engine_version.as_deref(),
-        Some(repose_engine::VERSION)
+    assert_each_names_its_engine(
+        &gpu,
+        (&on_gpu.bed.key, on_gpu.engine_version.as_deref()),
+        (&cpu[0].bed.key, cpu[0].engine_version.as_deref()),
     );
     for (k, stage) in on_gpu.stages.iter().enumerate() {
         let sigma = stage.normal_stress_kpa;

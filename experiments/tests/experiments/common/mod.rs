@@ -1,4 +1,4 @@
-//! Shared by the drilling tests.
+//! Shared by the drilling tests, and by the GPU tests of the soil experiments.
 
 use repose_experiments::drill::DrillSpec;
 
@@ -19,4 +19,20 @@ pub fn fast_auger_stl() -> Vec<u8> {
     })
     .unwrap()
     .to_stl_binary()
+}
+
+/// A GPU run on a bed settled on the GPU against a CPU run of the same spec: the GPU's bed key
+/// is the CPU's with `-gpu` after it, and each result names its engine (the GPU's adapter).
+pub fn assert_each_names_its_engine(
+    gpu: &repose_experiments::backend::Gpu,
+    (gpu_bed, gpu_version): (&str, Option<&str>),
+    (cpu_bed, cpu_version): (&str, Option<&str>),
+) {
+    assert_eq!(gpu_bed, format!("{cpu_bed}-gpu"));
+    let version = gpu_version.unwrap();
+    assert!(
+        version.contains(&format!("+gpu:{}", gpu.name())),
+        "{version}"
+    );
+    assert_eq!(cpu_version, Some(repose_engine::VERSION));
 }
