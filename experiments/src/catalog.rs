@@ -524,11 +524,11 @@ mod tests {
         );
     }
 
-    /// `aor` (both protocols) and `drill` run on the GPU with every contact law; every other
+    /// `aor` (both protocols), `drill` and `shear` run on the GPU with every contact law; every other
     /// kind is refused by name and permanently (no worker's GPU runs it), and a GPU run keeps no
     /// checkpoint while the CPU's key stays what it was.
     #[test]
-    fn the_gpu_runs_aor_and_drill_and_refuses_the_other_kinds_by_name() {
+    fn the_gpu_runs_aor_drill_and_shear_and_refuses_the_other_kinds_by_name() {
         let aor = Kind::Aor.prepare(Some("fast"), &json!({})).unwrap();
         for over in [
             json!({"protocol": "lifted_cylinder"}),
@@ -536,8 +536,8 @@ mod tests {
             json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
             json!({"rolling_model": "epsd"}),
         ] {
-            for kind in [Kind::Aor, Kind::Drill] {
-                if kind == Kind::Drill && over.get("protocol").is_some() {
+            for kind in [Kind::Aor, Kind::Drill, Kind::Shear] {
+                if kind != Kind::Aor && over.get("protocol").is_some() {
                     continue;
                 }
                 let spec = kind.prepare(Some("fast"), &over).unwrap();
@@ -553,7 +553,7 @@ mod tests {
             };
             let spec = kind.prepare(None, &spec).unwrap();
             spec.check_backend(BackendKind::Cpu).unwrap();
-            if matches!(kind, Kind::Aor | Kind::Drill) {
+            if matches!(kind, Kind::Aor | Kind::Drill | Kind::Shear) {
                 spec.check_backend(BackendKind::Gpu).unwrap();
                 continue;
             }
