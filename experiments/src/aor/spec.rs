@@ -370,7 +370,7 @@ pub const PAPER_SAND_SIEVE_CURVE: [(f64, f64); 5] = [
 ];
 
 /// A grading curve scaled in size (not in mass fractions) so that its volume-mean diameter
-/// d30 = E[d³]^⅓ (number-weighted: the diameter of the mean-mass grain) is `mean_diameter`.
+/// d30 = E\[d³\]^⅓ (number-weighted: the diameter of the mean-mass grain) is `mean_diameter`.
 /// A poured mass then holds as many grains as monodisperse grains of `mean_diameter` would.
 pub fn sieve_curve_with_mean_diameter(
     rows: &[(f64, f64)],

@@ -144,7 +144,7 @@ pub struct DrillMotionSpec {
     pub lift_height: f64,
 }
 
-/// How the hole is measured (see [`super::measure`]).
+/// How the hole is measured (see the `measure` module).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DrillMeasureSettings {

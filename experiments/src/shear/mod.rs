@@ -8,8 +8,10 @@
 //!   [`BedRecipe`](crate::soil::BedRecipe), in the closed box, a
 //!   [`SettledBed`](crate::soil::SettledBed)) and the key under which a
 //!   caller may cache it; [`run_shear_on_bed`] runs the stages on a cached sample,
-//!   [`run_shear`] builds it and runs them (the same outcome bit for bit). Every stage starts
-//!   from the same sample.
+//!   [`run_shear`] builds it and runs them (the same outcome bit for bit), on the CPU engine.
+//!   Every stage starts from the same sample. [`ShearOn`] names a spec and an engine (the CPU
+//!   or a GPU) for [`run_on_bed`](crate::soil::run_on_bed): the sample is settled and
+//!   sheared there.
 //! * [`ShearResult`] (serde; [`ShearResult::metrics`] for a job server) and the pictures
 //!   [`ShearRun::curves_svg`] / [`ShearRun::strength_svg`].
 //! * The measurement ([`shear_strength`], [`mohr_coulomb_fit`]): pure functions of a force
