@@ -7,6 +7,7 @@ use repose_engine::contact::{CohesionLaw, RollingModel};
 use repose_engine::integrate::Integrator;
 use repose_engine::material::MaterialId;
 use repose_engine::math::Vec3;
+use repose_engine::mesh::TriMesh;
 use repose_engine::particles::ParticleSpec;
 use repose_engine::world::World;
 
@@ -161,7 +162,8 @@ pub(crate) struct Params {
     pub gravity: [f32; 4],
     pub misc: [f32; 4],
     pub misc2: [f32; 4],
-    /// Moving geometries (x); the rest unused.
+    /// Moving geometries (x); where the triangles around each welded vertex start in the
+    /// triangle lists (y) and the welded vertices (z); w unused.
     pub movers: [u32; 4],
 }
 
@@ -184,7 +186,8 @@ pub(crate) struct PairC {
 
 /// One triangle. A static one: its first corner as a voxel and an offset, its two edges and
 /// the face normal in the world frame. A moving one ([`crate::movers`]): the corner, edges and
-/// normal in its body frame (voxel zero). The offset's w is the triangle's geometry.
+/// normal in its body frame (voxel zero). The offset's w is the triangle's geometry; the w of
+/// `e1`, `e2` and `normal` are its three corners' welded vertex ids in the scene (`Around`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub(crate) struct Tri {
@@ -338,6 +341,50 @@ fn jkr_cohesion(law: CohesionLaw) -> [f32; 4] {
     }
 }
 
+/// Vertex ids a triangle record can carry exactly (as f32 integers).
+const MAX_VERTICES: usize = 1 << 24;
+
+/// The scene's welded vertices and the triangles around each, over all its meshes (each mesh's
+/// vertices numbered after the previous mesh's, its triangles by their index in the scene's
+/// triangle records): what the shader's local-minimum test walks (`is_local_minimum`).
+/// `starts[v]..starts[v + 1]` index `triangles`.
+struct Around {
+    starts: Vec<u32>,
+    triangles: Vec<u32>,
+}
+
+impl Default for Around {
+    fn default() -> Around {
+        Around {
+            starts: vec![0],
+            triangles: Vec::new(),
+        }
+    }
+}
+
+impl Around {
+    /// Adds `mesh`, its triangles recorded from `first_triangle` on; returns each triangle's
+    /// welded corners as scene vertex ids (f32 integers, as the triangle records carry them).
+    fn add(&mut self, mesh: &TriMesh, first_triangle: usize) -> Result<Vec<[f32; 3]>, GpuError> {
+        let base = self.starts.len() - 1;
+        let count = mesh.welded_vertex_count();
+        if base + count > MAX_VERTICES || first_triangle + mesh.normals().len() > MAX_VERTICES {
+            return Err(GpuError::Capacity(format!(
+                "more than {MAX_VERTICES} mesh vertices or triangles in the scene"
+            )));
+        }
+        for v in 0..count {
+            let around = mesh.triangles_around(v as u32);
+            self.triangles
+                .extend(around.iter().map(|&t| first_triangle as u32 + t));
+            self.starts.push(self.triangles.len() as u32);
+        }
+        Ok((0..mesh.normals().len())
+            .map(|t| mesh.welded_corners(t).map(|v| (base + v as usize) as f32))
+            .collect())
+    }
+}
+
 fn v4(v: Vec3, w: f32) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w]
 }
@@ -433,11 +480,13 @@ impl Scene {
         let reach = 1.01 * max_radius;
         let mut tris = Vec::new();
         let mut corners = Vec::new();
+        let mut around = Around::default();
         for (index, g) in world.geometries().iter().enumerate() {
             if moves[index] {
                 continue;
             }
             let pose = g.motion.pose_at(world.time());
+            let ids = around.add(&g.mesh, tris.len())?;
             for (t, normal) in g.mesh.normals().iter().enumerate() {
                 let [a, b, c] = g
                     .mesh
@@ -445,12 +494,13 @@ impl Scene {
                     .map(|v| pose.transform_point(&v.into()).coords);
                 corners.push([a, b, c]);
                 let (cell, v0) = grid.to_voxel_unwrapped(a);
+                let [ia, ib, ic] = ids[t];
                 tris.push(Tri {
                     cell: [cell[0], cell[1], cell[2], g.material.0 as i32],
                     v0: [v0[0], v0[1], v0[2], index as f32],
-                    e1: v4(b - a, 0.0),
-                    e2: v4(c - a, 0.0),
-                    normal: v4(pose.rotation * normal, 0.0),
+                    e1: v4(b - a, ia),
+                    e2: v4(c - a, ib),
+                    normal: v4(pose.rotation * normal, ic),
                 });
             }
         }
@@ -461,14 +511,16 @@ impl Scene {
                 continue;
             }
             let body = bin_body_mesh(&g.mesh, grid.voxel.min(), reach, tris.len() as u32)?;
+            let ids = around.add(&g.mesh, tris.len())?;
             for (t, normal) in g.mesh.normals().iter().enumerate() {
                 let [a, b, c] = g.mesh.corners(t);
+                let [ia, ib, ic] = ids[t];
                 tris.push(Tri {
                     cell: [0, 0, 0, g.material.0 as i32],
                     v0: v4(a, index as f32),
-                    e1: v4(b - a, 0.0),
-                    e2: v4(c - a, 0.0),
-                    normal: v4(*normal, 0.0),
+                    e1: v4(b - a, ia),
+                    e2: v4(c - a, ib),
+                    normal: v4(*normal, ic),
                 });
             }
             movers.push(Mover {
@@ -479,6 +531,11 @@ impl Scene {
             });
             tri_grid.extend_from_slice(&body.lists);
         }
+        // The triangles around each welded vertex, after the lists (`Around`).
+        let around_at = tri_grid.len();
+        let vertices = around.starts.len() - 1;
+        tri_grid.extend_from_slice(&around.starts);
+        tri_grid.extend_from_slice(&around.triangles);
         let slots = capacity.particles;
         // Empty slots: material -1 (dead), the rest zero.
         let mut cell = vec![[0, 0, 0, -1]; slots];
@@ -519,7 +576,7 @@ impl Scene {
                     [1e-3 * min_radius as f32, 0.0, viscous_damping as f32, 0.0]
                 }
             },
-            movers: [movers.len() as u32, 0, 0, 0],
+            movers: [movers.len() as u32, around_at as u32, vertices as u32, 0],
         };
         Ok(Scene {
             grid,

@@ -625,48 +625,123 @@ fn wall_motion(tc: TriContact, ci: vec3<i32>, oi: vec3<f32>) -> WallMotion {
     return w;
 }
 
-// The closest point of triangle t to p (p relative to the first corner), relative to the
-// first corner (Ericson, Real-Time Collision Detection 5.1.5).
-fn closest_on_triangle(p: vec3<f32>, ab: vec3<f32>, ac: vec3<f32>) -> vec3<f32> {
+// Where on a triangle its closest point lies (`Closest.feature`): a corner (a, b, c), an
+// edge (ab, ac, bc) or the face.
+const AT_A: u32 = 0u;
+const AT_B: u32 = 1u;
+const AT_C: u32 = 2u;
+const ON_AB: u32 = 3u;
+const ON_AC: u32 = 4u;
+const ON_BC: u32 = 5u;
+const ON_FACE: u32 = 6u;
+
+struct Closest {
+    q: vec3<f32>,
+    feature: u32,
+}
+
+fn closest(q: vec3<f32>, feature: u32) -> Closest {
+    var c: Closest;
+    c.q = q;
+    c.feature = feature;
+    return c;
+}
+
+// The closest point of a triangle to p (p relative to its first corner a, its edges ab and
+// ac), relative to a, and where it lies (Ericson, Real-Time Collision Detection 5.1.5).
+fn closest_on_triangle(p: vec3<f32>, ab: vec3<f32>, ac: vec3<f32>) -> Closest {
     let ap = p;
     let d1 = dot(ab, ap);
     let d2 = dot(ac, ap);
     if (d1 <= 0.0 && d2 <= 0.0) {
-        return vec3<f32>(0.0);
+        return closest(vec3<f32>(0.0), AT_A);
     }
     let bp = p - ab;
     let d3 = dot(ab, bp);
     let d4 = dot(ac, bp);
     if (d3 >= 0.0 && d4 <= d3) {
-        return ab;
+        return closest(ab, AT_B);
     }
     let vc = d1 * d4 - d3 * d2;
     if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
-        return ab * (d1 / (d1 - d3));
+        return closest(ab * (d1 / (d1 - d3)), ON_AB);
     }
     let cp = p - ac;
     let d5 = dot(ab, cp);
     let d6 = dot(ac, cp);
     if (d6 >= 0.0 && d5 <= d6) {
-        return ac;
+        return closest(ac, AT_C);
     }
     let vb = d5 * d2 - d1 * d6;
     if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
-        return ac * (d2 / (d2 - d6));
+        return closest(ac * (d2 / (d2 - d6)), ON_AC);
     }
     let va = d3 * d6 - d5 * d4;
     if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
-        return ab + (ac - ab) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+        return closest(ab + (ac - ab) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))), ON_BC);
     }
     let denom = 1.0 / (va + vb + vc);
-    return ab * (vb * denom) + ac * (vc * denom);
+    return closest(ab * (vb * denom) + ac * (vc * denom), ON_FACE);
 }
 
-// Offers triangle `tri`'s contact with grain of radius `ri` to the candidates: `p` is the
-// grain's centre relative to the triangle's first corner in the triangle's frame (`wall`).
-fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, tri: Tri,
-         p: vec3<f32>, wall: Wall, ri: f32) {
-    let q = closest_on_triangle(p, tri.e1.xyz, tri.e2.xyz);
+// The grain's centre relative to triangle `tri`'s first corner, in the triangle's frame: for
+// a static triangle from the grain's voxel `ci` and offset `oi`; for a moving one (`mover` at
+// least 0) from its body-frame centre `body`.
+fn centre_from(tri: Tri, mover: i32, ci: vec3<i32>, oi: vec3<f32>, body: vec3<f32>) -> vec3<f32> {
+    if (mover >= 0) {
+        return body - tri.v0.xyz;
+    }
+    return vec3<f32>(ci - tri.cell.xyz) * P.csize.xyz + (oi - tri.v0.xyz);
+}
+
+// The CPU engine's local-minimum test (`TriMesh::is_local_minimum`): a contact on an edge or
+// at a corner of triangle `t` counts only if every other triangle sharing that edge or corner
+// (by welded vertex) has its closest point there too, within `tol`; where a neighbour reaches
+// closer, the grain's contact is with that neighbour, which offers it itself. `to_point`: from
+// the grain's centre to the contact point, in the triangle's frame.
+fn is_local_minimum(t: u32, tri: Tri, feature: u32, to_point: vec3<f32>, mover: i32,
+                    ci: vec3<i32>, oi: vec3<f32>, body: vec3<f32>, tol: f32) -> bool {
+    let ids = vec3<u32>(u32(tri.e1.w), u32(tri.e2.w), u32(tri.normal.w));
+    var pivot = ids.x;
+    var other = 0xffffffffu;
+    switch feature {
+        case AT_B: { pivot = ids.y; }
+        case AT_C: { pivot = ids.z; }
+        case ON_AB: { other = ids.y; }
+        case ON_AC: { other = ids.z; }
+        case ON_BC: { pivot = ids.y; other = ids.z; }
+        default: {}
+    }
+    let at = P.movers.y;
+    let listed = at + P.movers.z + 1u;
+    let end = tgrid[at + pivot + 1u];
+    for (var k = tgrid[at + pivot]; k < end; k++) {
+        let n = tgrid[listed + k];
+        if (n == t) {
+            continue;
+        }
+        let nt = tris[n];
+        if (other != 0xffffffffu && u32(nt.e1.w) != other && u32(nt.e2.w) != other
+                && u32(nt.normal.w) != other) {
+            continue;
+        }
+        let pn = centre_from(nt, mover, ci, oi, body);
+        let d = (closest_on_triangle(pn, nt.e1.xyz, nt.e2.xyz).q - pn) - to_point;
+        if (dot(d, d) > tol * tol) {
+            return false;
+        }
+    }
+    return true;
+}
+
+// Offers triangle `t`'s (`tri`) contact with the grain of radius `ri` to the candidates: the
+// grain's centre is at voxel `ci` and offset `oi`, or at `body` in a moving triangle's body
+// frame (`wall`).
+fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, t: u32,
+         tri: Tri, ci: vec3<i32>, oi: vec3<f32>, body: vec3<f32>, wall: Wall, ri: f32) {
+    let p = centre_from(tri, wall.mover, ci, oi, body);
+    let found = closest_on_triangle(p, tri.e1.xyz, tri.e2.xyz);
+    let q = found.q;
     let d = p - q;
     let dist2 = dot(d, d);
     if (!(dist2 < ri * ri)) {
@@ -680,6 +755,10 @@ fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, 
         if ((*cand)[c].geometry == geometry && dot(e, e) <= tol * tol) {
             return;
         }
+    }
+    if (found.feature != ON_FACE
+            && !is_local_minimum(t, tri, found.feature, q - p, wall.mover, ci, oi, body, tol)) {
+        return;
     }
     if (*nc == WCAND) {
         atomicAdd(&ctl[6], 1u);
@@ -804,9 +883,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     let last = tgrid[voxel + 1u];
     let fixed = static_wall();
     for (var e = tgrid[voxel]; e < last; e++) {
-        let tri = tris[tgrid[listed + e]];
-        let p = vec3<f32>(ci - tri.cell.xyz) * P.csize.xyz + (oi - tri.v0.xyz);
-        offer(&cand, &nc, tri, p, fixed, ri);
+        let t = tgrid[listed + e];
+        offer(&cand, &nc, t, tris[t], ci, oi, vec3<f32>(0.0), fixed, ri);
     }
     for (var m = 0u; m < P.movers.x; m++) {
         let g = F.m[m];
@@ -826,8 +904,8 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         let entries = u32(g.cell.w) + dims.x * dims.y * dims.z + 1u;
         let end = tgrid[c + 1u];
         for (var e = tgrid[c]; e < end; e++) {
-            let tri = tris[tgrid[entries + e]];
-            offer(&cand, &nc, tri, body - tri.v0.xyz, w, ri);
+            let t = tgrid[entries + e];
+            offer(&cand, &nc, t, tris[t], ci, oi, body, w, ri);
         }
     }
     // Deepest first (ties by point), then drop those within the distinct angle of a kept one.

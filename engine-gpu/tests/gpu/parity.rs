@@ -226,6 +226,47 @@ fn linear_cohesion_pulls_with_k_times_the_area_where_the_bodies_cut() {
     }
 }
 
+/// A sphere over a box's top face near its edge, close enough that the side face's closest
+/// point (the edge) is within its radius at 45° from the top's normal (past the merging angle):
+/// the CPU engine keeps the top face's contact only (the edge is not a local minimum of the
+/// distance over the triangles sharing it: the top face reaches closer), and so does the GPU.
+/// Near a vertex of the top face (two triangles' diagonal) the same holds for the corner.
+#[test]
+fn a_sphere_over_a_boxs_edge_feels_the_top_face_only_as_on_the_cpu() {
+    let Some(gpu) = common::gpu() else { return };
+    let r = 2.0e-3;
+    let domain = Domain::closed(Vec3::repeat(-0.05), Vec3::repeat(0.05));
+    // The cuboid's top at z = 0.02, its +x side at x = 0.01. The centre is 0.45 r inside the
+    // side and 0.55 r above the top: the top's overlap is 0.45 r, the edge is 0.711 r away.
+    let cases = [
+        ("edge", Vec3::new(0.01 - 0.45 * r, 0.003, 0.02 + 0.55 * r)),
+        (
+            "corner",
+            Vec3::new(0.01 - 0.45 * r, 0.01 - 0.45 * r, 0.02 + 0.55 * r),
+        ),
+    ];
+    for (name, centre) in cases {
+        let mut w = world(table(0.5, 0.5, 0.0), 1e-8, Vec3::zeros(), domain);
+        add_mesh(&mut w, generators::cuboid(0.02, 0.02, 0.02).unwrap());
+        w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
+            .unwrap();
+        let on_gpu = first_step_force(&gpu, &w, 0);
+        w.step();
+        let p = w.particles();
+        let on_cpu = p.velocity[0] * (p.mass[0] / w.config().time_step);
+        let expected = hertz(e_star_wall(), r, 0.45 * r);
+        println!("{name}: GPU {on_gpu:?}, CPU {on_cpu:?}, Hertz on the top {expected:.6e} N");
+        assert!(
+            (on_cpu.z / expected - 1.0).abs() < 1e-6,
+            "{name}: CPU {on_cpu:?}"
+        );
+        assert!(
+            (on_gpu - on_cpu).norm() < 1e-3 * expected,
+            "{name}: GPU {on_gpu:?} against the CPU's {on_cpu:?}"
+        );
+    }
+}
+
 #[test]
 fn a_sphere_on_a_triangle_face_edge_and_corner_feels_hertz_along_the_contact_normal() {
     let Some(gpu) = common::gpu() else { return };

@@ -277,6 +277,30 @@ impl TriMesh {
         self.triangles[t].map(|i| self.vertices[i as usize])
     }
 
+    /// The welded vertices of triangle `t` (corners within the mesh's tolerance share one),
+    /// as the contact query's local-minimum test sees them.
+    ///
+    /// # Panics
+    /// If `t` is out of range, like slice indexing.
+    pub fn welded_corners(&self, t: usize) -> [u32; 3] {
+        self.welded_triangles[t]
+    }
+
+    /// Welded vertices (`welded_corners` are below this).
+    pub fn welded_vertex_count(&self) -> usize {
+        self.vertex_triangle_starts.len() - 1
+    }
+
+    /// The triangles around welded vertex `v`, ascending.
+    ///
+    /// # Panics
+    /// If `v` is out of range, like slice indexing.
+    pub fn triangles_around(&self, v: u32) -> &[u32] {
+        let v = v as usize;
+        &self.vertex_triangles
+            [self.vertex_triangle_starts[v] as usize..self.vertex_triangle_starts[v + 1] as usize]
+    }
+
     /// Axis-aligned bounds in the body frame (of the vertices used by triangles).
     pub fn aabb(&self) -> (Vec3, Vec3) {
         (self.lo, self.hi)
