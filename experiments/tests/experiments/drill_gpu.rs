@@ -111,10 +111,10 @@ fn a_small_drill_on_the_gpu_opens_a_hole_inside_the_cpu_seed_spread() {
 /// `cargo test -p repose-experiments --test experiments drill_gpu::the_fast -- --ignored
 /// --nocapture`.
 ///
-/// Measured 2026-11-27 (`repose drill --preset fast [--backend gpu] --set seed=N`, lavapipe):
-/// CPU openings 62.70, 61.78, 63.34 mm, feed torques 0.0175, 0.0159, 0.0171 N·m, energies 1.893,
-/// 1.743, 1.816 J; GPU 63.61, 64.71, 63.39 mm, 0.0155, 0.0144, 0.0173 N·m, 1.693, 1.606,
-/// 1.856 J (100-150 s a run).
+/// Measured 2026-11-27 (`repose drill --preset fast [--backend gpu] --set seed=N`, lavapipe,
+/// 225545c): CPU openings 62.70, 61.78, 63.34 mm, feed torques 0.0175, 0.0159, 0.0171 N·m,
+/// energies 1.893, 1.743, 1.816 J; GPU 64.44, 62.15, 61.74 mm, 0.0165, 0.0153, 0.0165 N·m,
+/// 1.742, 1.692, 1.864 J (about 100 s a run).
 #[test]
 #[ignore = "six fast drills, three of them on the GPU: eight minutes on lavapipe"]
 fn the_fast_drill_agrees_on_both_backends_over_three_seeds() {
