@@ -286,8 +286,9 @@ fn the_gpu_backend_refuses_checkpoints_by_name() {
 /// 140-320 s each): `cargo test -p repose-experiments --test experiments aor_gpu:: --
 /// --ignored --nocapture`.
 ///
-/// Measured 2026-11-27 on lavapipe: CPU 21.21, 22.69, 20.04, 22.65, 23.37° (mean 21.99°), GPU
-/// 22.26, 21.51, 19.56, 20.05, 20.28° (mean 20.73°): each mean inside the other's range, but
+/// Measured 2026-11-27 on lavapipe, before the GPU had the local-minimum test (225545c): CPU
+/// 21.21, 22.69, 20.04, 22.65, 23.37° (mean 21.99°), GPU 22.26, 21.51, 19.56, 20.05, 20.28°
+/// (mean 20.73°): each mean inside the other's range, but
 /// 1.26° apart, so this test fails. Five heaps a side (σ 1.3° a heap, so σ 0.8° for the
 /// difference of the means) cannot tell a 1° bias from chance; the small funnel over 24 seeds
 /// (`SEED_STD_DEG`) found none (0.03°).
