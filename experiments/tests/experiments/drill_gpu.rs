@@ -6,7 +6,7 @@
 use repose_experiments::backend::Engine;
 use repose_experiments::catalog::NoBedStore;
 use repose_experiments::drill::{Control, DrillOn, DrillResult, DrillSpec, DrillStatus};
-use repose_experiments::soil::run_on_bed;
+use repose_experiments::soil::{run_on_bed, OnBed};
 use repose_experiments::Spec;
 
 use crate::common::assert_each_names_its_engine;
@@ -145,6 +145,72 @@ fn the_fast_drill_agrees_on_both_backends_over_three_seeds() {
             (c - g).abs() < tolerance * std,
             "{name}: means {c} (CPU) and {g} (GPU) differ by {} σ or more",
             tolerance
+        );
+    }
+}
+
+/// One CPU-settled bed drilled on both engines, the small drill at seeds 1-12: the bed handed to
+/// [`OnBed::run_on_matching_bed`] with each engine, so the drilling alone differs. The runs part
+/// (the auger churns the bed), so only means compare: each figure's mean paired difference
+/// (GPU − CPU) lies within three standard errors of zero. 3 min 20 s on lavapipe:
+/// `cargo test -p repose-experiments --test experiments drill_gpu::one_bed -- --ignored
+/// --nocapture`.
+///
+/// Measured 2026-11-27 (225545c; the CPU's means 11.57 mm deep, backfill 0.708, feed torque
+/// 0.0113 N·m, energy 0.440 J): depth +0.59 ± 0.76 mm, backfill −0.005 ± 0.007, torque
+/// −0.0005 ± 0.0002 N·m (2.5 standard errors), energy −0.016 ± 0.007 J (2.3): the GPU's drilling
+/// energy and torque run about 4 % low; the cause is not known (docs/gpu.md).
+#[test]
+#[ignore = "twelve beds drilled on both engines: three and a half minutes on lavapipe"]
+fn one_bed_drilled_on_both_engines_over_twelve_seeds() {
+    let Some(gpu) = gpu() else { return };
+    let figures = |r: &DrillResult| {
+        [
+            r.effective_depth_mm.unwrap(),
+            r.backfill_ratio.unwrap(),
+            r.mean_feed_torque_nm,
+            r.energy_j,
+        ]
+    };
+    let mut differences = Vec::new();
+    for seed in 1..=12 {
+        let mut spec = small();
+        spec.seed = seed;
+        let bed = DrillOn::cpu(&spec)
+            .build_bed(&mut |_| Control::Continue)
+            .unwrap();
+        let on = |engine| {
+            let on = DrillOn {
+                spec: &spec,
+                engine,
+            };
+            let r = on
+                .run_on_matching_bed(bed.clone(), &mut |_| Control::Continue)
+                .unwrap()
+                .result;
+            assert_eq!(r.status, DrillStatus::Ok, "{:?}", r.message);
+            figures(&r)
+        };
+        let (cpu, on_gpu) = (on(Engine::Cpu), on(Engine::Gpu(&gpu)));
+        eprintln!("seed {seed}: CPU {cpu:?}, GPU {on_gpu:?}");
+        differences.push(std::array::from_fn::<f64, 4, _>(|k| on_gpu[k] - cpu[k]));
+    }
+    let n = differences.len() as f64;
+    for (k, name) in ["depth (mm)", "backfill", "feed torque (N m)", "energy (J)"]
+        .iter()
+        .enumerate()
+    {
+        let mean = differences.iter().map(|d| d[k]).sum::<f64>() / n;
+        let var = differences
+            .iter()
+            .map(|d| (d[k] - mean).powi(2))
+            .sum::<f64>()
+            / (n - 1.0);
+        let se = (var / n).sqrt();
+        eprintln!("{name}: GPU − CPU {mean:.5} ± {se:.5}");
+        assert!(
+            mean.abs() < 3.0 * se,
+            "{name}: the GPU's mean difference {mean} is more than 3 standard errors ({se})"
         );
     }
 }
