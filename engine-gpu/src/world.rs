@@ -130,6 +130,8 @@ pub struct GpuWorld {
     movers: Vec<Mover>,
     frames: wgpu::Buffer,
     frames_group: wgpu::BindGroup,
+    /// The submission being encoded has a block per force evaluation (else one blank block).
+    frames_per_evaluation: bool,
     /// Steps between two recorded force evaluations (the CPU engine's
     /// `geometry_record_interval`).
     record_interval: u64,
@@ -459,6 +461,7 @@ impl GpuWorld {
             movers: scene.movers,
             frames,
             frames_group,
+            frames_per_evaluation: false,
             record_interval: world.config().geometry_record_interval.max(1),
             pending: Vec::new(),
             step_params,
@@ -792,8 +795,16 @@ impl GpuWorld {
     /// start-up's at the present time, then one per step, at the step's start (symplectic
     /// Euler) or end (velocity Verlet), the times the CPU engine evaluates its forces at; the
     /// last step's samples `slab`, if any. Notes the recorded evaluations' times as pending.
-    /// Written even without moving geometries: each block says whether its evaluation samples.
     fn write_frames(&mut self, records: &[bool], startup: bool, slab: Option<&SlabFrame>) {
+        // Nothing moves and nothing is sampled: one blank block serves every evaluation (it
+        // also clears a sampling flag an earlier submission left in the first block).
+        self.frames_per_evaluation = !self.movers.is_empty() || slab.is_some();
+        if !self.frames_per_evaluation {
+            let blank = frames_at(&[], &self.grid, self.time, -1, None);
+            self.queue
+                .write_buffer(&self.frames, 0, bytemuck::bytes_of(&blank));
+            return;
+        }
         let mut frames = Vec::with_capacity(records.len() + 1);
         let mut t = self.time;
         if startup {
@@ -821,7 +832,11 @@ impl GpuWorld {
 
     /// Binds the frames of the next force evaluation.
     fn set_frames(&self, pass: &mut wgpu::ComputePass, evaluation: &mut u32) {
-        let offset = *evaluation * FRAME_BYTES as u32;
+        let offset = if self.frames_per_evaluation {
+            *evaluation * FRAME_BYTES as u32
+        } else {
+            0
+        };
         pass.set_bind_group(2, &self.frames_group, &[offset]);
         *evaluation += 1;
     }

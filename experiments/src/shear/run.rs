@@ -361,22 +361,6 @@ pub fn build_sample(
 /// A shear spec on an engine: its sample is settled and sheared there ([`On`]).
 pub type ShearOn<'a> = On<'a, ShearSpec>;
 
-fn build_sample_on(
-    engine: Engine<'_>,
-    spec: &ShearSpec,
-    progress: &mut dyn FnMut(Progress<'_>) -> Control,
-) -> Result<SettledBed, ShearError> {
-    spec.validate()?;
-    Ok(spec.bed_recipe().build_on(engine, &mut |p| {
-        progress(Progress {
-            fraction: p.fraction,
-            phase: "sample",
-            time: p.time,
-            particles: p.particles,
-        })
-    })?)
-}
-
 /// Builds the sample and runs every stage on it ([`run_on_bed`] without a store), on the CPU
 /// engine. The sample takes the first fifth of the progress fraction.
 pub fn run_shear(
@@ -411,7 +395,15 @@ impl OnBed for ShearOn<'_> {
         &self,
         progress: &mut dyn FnMut(Progress<'_>) -> Control,
     ) -> Result<SettledBed, ShearError> {
-        build_sample_on(self.engine, self.spec, progress)
+        self.spec.validate()?;
+        Ok(self.spec.bed_recipe().build_on(self.engine, &mut |p| {
+            progress(Progress {
+                fraction: p.fraction,
+                phase: "sample",
+                time: p.time,
+                particles: p.particles,
+            })
+        })?)
     }
 
     fn run_on_matching_bed(
