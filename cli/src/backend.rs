@@ -23,7 +23,7 @@ pub fn open_worker_gpu(
         "--gpu: this worker cannot open a GPU adapter, so it cannot run gpu jobs (start it \
          without --gpu to run CPU jobs only)",
     )?;
-    eprintln!("GPU: {}", opened.describe());
+    announce(&opened);
     Ok(Some(std::sync::Arc::new(opened)))
 }
 
@@ -35,9 +35,34 @@ pub fn open_gpu(backend: Backend) -> anyhow::Result<Option<repose_experiments::b
         Backend::Cpu => Ok(None),
         Backend::Gpu => {
             let gpu = repose_experiments::backend::Gpu::open().context("--backend gpu")?;
-            eprintln!("GPU: {}", gpu.describe());
+            announce_and_log(&gpu);
             Ok(Some(gpu))
         }
+    }
+}
+
+/// Names the adapter on stderr. With `REPOSE_GPU_PROFILE` set, says whether the adapter can
+/// time its kernels: where it can, each GPU world logs its profile when dropped (target
+/// `repose_engine_gpu::profile`, level info: a worker's log has it).
+pub fn announce(gpu: &repose_engine_gpu::Gpu) {
+    eprintln!("GPU: {}", gpu.describe());
+    if std::env::var_os("REPOSE_GPU_PROFILE").is_some_and(|v| !v.is_empty() && v != "0") {
+        if gpu.profiling() {
+            eprintln!("GPU: timing every kernel (REPOSE_GPU_PROFILE): the run is slower");
+        } else {
+            eprintln!(
+                "GPU: REPOSE_GPU_PROFILE is set, but this adapter cannot write timestamps \
+                 inside compute passes: no profile"
+            );
+        }
+    }
+}
+
+/// [`announce`], for a command that logs nothing else: a profile goes to stderr.
+pub fn announce_and_log(gpu: &repose_engine_gpu::Gpu) {
+    announce(gpu);
+    if gpu.profiling() {
+        crate::init_logging("warn,repose_engine_gpu::profile=info");
     }
 }
 

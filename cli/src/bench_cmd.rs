@@ -132,7 +132,7 @@ fn engine(args: &EngineBenchArgs) -> Result<()> {
     let gpu = match args.backend {
         crate::backend::Backend::Gpu => {
             let gpu = repose_engine_gpu::Gpu::open().context("--backend gpu")?;
-            eprintln!("GPU: {}", gpu.describe());
+            crate::backend::announce_and_log(&gpu);
             Some(gpu)
         }
         crate::backend::Backend::Cpu => None,

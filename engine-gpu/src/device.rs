@@ -9,6 +9,17 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
+    profiling: bool,
+}
+
+/// The features a profile needs: timestamps between the kernels of a compute pass.
+fn profile_features() -> wgpu::Features {
+    wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES
+}
+
+/// Whether `REPOSE_GPU_PROFILE` asks for a profile (set, not empty, not `0`).
+fn profile_asked() -> bool {
+    std::env::var("REPOSE_GPU_PROFILE").is_ok_and(|v| !v.is_empty() && v != "0")
 }
 
 /// The backends the engine uses: native compute APIs only (no GL, no WebGPU).
@@ -20,6 +31,10 @@ impl Gpu {
     /// The first high-performance adapter of Vulkan, Metal or DX12 (`WGPU_ADAPTER_NAME`, a
     /// substring of the adapter's name, picks another), with a device that has the adapter's
     /// own limits. No adapter is an error naming the backends tried, never a fall-back.
+    ///
+    /// `REPOSE_GPU_PROFILE=1` asks the worlds stepped on it to time their kernels
+    /// ([`GpuWorld::profile`](crate::GpuWorld::profile)), where the adapter can write
+    /// timestamps inside compute passes ([`Gpu::profiling`] says whether it could).
     pub fn open() -> Result<Gpu, GpuError> {
         let instance = wgpu::Instance::new(&wgpu::InstanceDescriptor {
             backends: backends(),
@@ -53,9 +68,14 @@ impl Gpu {
         };
         let info = adapter.get_info();
         let limits = adapter.limits();
+        let profiling = profile_asked() && adapter.features().contains(profile_features());
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("repose-engine-gpu"),
-            required_features: wgpu::Features::empty(),
+            required_features: if profiling {
+                profile_features()
+            } else {
+                wgpu::Features::empty()
+            },
             required_limits: limits.clone(),
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
@@ -69,7 +89,14 @@ impl Gpu {
             queue,
             info,
             limits,
+            profiling,
         })
+    }
+
+    /// Whether the worlds stepped on this GPU time their kernels (`REPOSE_GPU_PROFILE` asked
+    /// and the adapter can).
+    pub fn profiling(&self) -> bool {
+        self.profiling
     }
 
     /// The adapter's name, backend and driver, e.g. "NVIDIA H200 (Vulkan, NVIDIA 570.x)".

@@ -28,6 +28,7 @@
 mod device;
 mod error;
 mod movers;
+mod profile;
 pub mod scene;
 mod world;
 
@@ -36,6 +37,7 @@ pub mod bench;
 pub use device::Gpu;
 pub use error::GpuError;
 pub use movers::MAX_MOVERS;
+pub use profile::{KernelTime, Profile};
 pub use scene::Capacity;
 pub use world::{Counters, GpuParticles, GpuWorld, Slab};
 

@@ -1,5 +1,8 @@
 //! A world stepped on the GPU: the buffers, the pipelines and the step's dispatch order.
 
+use std::sync::Mutex;
+use std::time::Instant;
+
 use bytemuck::Pod;
 use repose_engine::integrate::Integrator;
 use repose_engine::kinematics::Motion;
@@ -10,6 +13,7 @@ use wgpu::util::DeviceExt;
 use repose_engine::particles::ParticleSpec;
 
 use crate::movers::{frames_at, Frames, Mover, SlabFrame};
+use crate::profile::{Profile, Profiler};
 use crate::scene::{
     particle_record, Capacity, Grid, Params, Record, Scene, Voxel, BIN_CAPACITY,
     NEIGHBOUR_CAPACITY, WALL_CAPACITY, WORKGROUP,
@@ -150,6 +154,16 @@ pub struct GpuWorld {
     steps: u64,
     forces_current: bool,
     adapter: String,
+    /// Kernel timestamps, when the GPU was opened to profile ([`Gpu::profiling`]).
+    profiler: Option<Mutex<Profiler>>,
+}
+
+impl Drop for GpuWorld {
+    fn drop(&mut self) {
+        if let Some(profile) = self.profile() {
+            tracing::info!(target: "repose_engine_gpu::profile", "{} grain slots, {} cells\n{profile}", self.n, self.cells);
+        }
+    }
 }
 
 impl std::fmt::Debug for GpuWorld {
@@ -162,6 +176,11 @@ impl std::fmt::Debug for GpuWorld {
             .field("steps", &self.steps)
             .finish_non_exhaustive()
     }
+}
+
+/// The profiler (a panic while it was held left nothing half-written that matters).
+fn lock(profiler: &Mutex<Profiler>) -> std::sync::MutexGuard<'_, Profiler> {
+    profiler.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Workgroups for `count` threads (at least one: an empty world's kernels run as no-ops).
@@ -219,10 +238,9 @@ impl GpuWorld {
                 limits.max_storage_buffer_binding_size
             )));
         }
-        if groups(n.max(scene.grid.cells())) > limits.max_compute_workgroups_per_dimension {
+        if groups(n) > limits.max_compute_workgroups_per_dimension {
             return Err(GpuError::Capacity(format!(
-                "{n} particles or {} cells exceed {} workgroups of {WORKGROUP}",
-                scene.grid.cells(),
+                "{n} particles exceed {} workgroups of {WORKGROUP}",
                 limits.max_compute_workgroups_per_dimension
             )));
         }
@@ -273,7 +291,8 @@ impl GpuWorld {
         let nbn = zeroed("nbn", n64 * 4);
         let spr = zeroed("spr", list * 16 * springs);
         let nbr2 = zeroed("nbr2", list * 4);
-        let nbn2 = zeroed("nbn2", n64 * 4);
+        // The cell each slot was binned in at the last rebuild (`clear_bins` empties those).
+        let binned = zeroed("binned", n64 * 4);
         let spr2 = zeroed("spr2", list * 16 * springs);
         let cells = scene.grid.cells() as u64;
         let bins = zeroed("bins", cells * BIN_CAPACITY as u64 * 4);
@@ -348,7 +367,7 @@ impl GpuWorld {
             }],
         });
         let all: [&wgpu::Buffer; 23] = [
-            &cell, &off, &vel, &omg, &frc, &trq, &disp, &nbr, &nbn, &spr, &nbr2, &nbn2, &spr2,
+            &cell, &off, &vel, &omg, &frc, &trq, &disp, &nbr, &nbn, &spr, &nbr2, &binned, &spr2,
             &bins, &binn, &walls, &tris, &pc, &ctl, &tri_grid, &wload, &series, &slab,
         ];
         let main_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -422,6 +441,9 @@ impl GpuWorld {
         if let Some(e) = pollster::block_on(device.pop_error_scope()) {
             return Err(GpuError::Lost(format!("creating the pipelines: {e}")));
         }
+        let profiler = gpu
+            .profiling()
+            .then(|| Mutex::new(Profiler::new(&device, &queue)));
         let gpu_world = GpuWorld {
             device,
             queue,
@@ -470,6 +492,7 @@ impl GpuWorld {
             time_step: world.config().time_step,
             refilled: 0,
             steps: 0,
+            profiler,
             forces_current: false,
             adapter: gpu.name().to_owned(),
         };
@@ -607,30 +630,52 @@ impl GpuWorld {
         Ok(slots)
     }
 
+    /// Where the steps' time went so far, when the GPU was opened to profile
+    /// ([`Gpu::profiling`]); `None` otherwise. The world also logs it when dropped (target
+    /// `repose_engine_gpu::profile`, level info).
+    pub fn profile(&self) -> Option<Profile> {
+        self.profiler.as_ref().map(|p| lock(p).totals().clone())
+    }
+
     /// Bytes of device memory the world's buffers take.
     pub fn memory_bytes(&self) -> u64 {
         self.buffers.bytes
     }
 
+    /// Runs `pipeline` over `count` threads (kernel `name` in a profile).
     fn dispatch(
         &self,
         pass: &mut wgpu::ComputePass,
         pipeline: &wgpu::ComputePipeline,
         count: usize,
+        name: &'static str,
+    ) {
+        self.dispatch_groups(pass, pipeline, groups(count), name);
+    }
+
+    fn dispatch_groups(
+        &self,
+        pass: &mut wgpu::ComputePass,
+        pipeline: &wgpu::ComputePipeline,
+        workgroups: u32,
+        name: &'static str,
     ) {
         pass.set_pipeline(pipeline);
-        pass.dispatch_workgroups(groups(count), 1, 1);
+        pass.dispatch_workgroups(workgroups, 1, 1);
+        if let Some(profiler) = &self.profiler {
+            lock(profiler).after(pass, name);
+        }
     }
 
     /// Decides whether this step rebuilds the neighbour lists and runs the rebuild kernels
     /// (each a no-op unless it does: no GPU-written dispatch sizes, no read-back).
     fn rebuild_phase(&self, pass: &mut wgpu::ComputePass) {
         let p = &self.pipelines;
-        pass.set_pipeline(&p.arm);
-        pass.dispatch_workgroups(1, 1, 1);
-        self.dispatch(pass, &p.clear_bins, self.cells);
-        for pipeline in [&p.bin, &p.build, &p.commit] {
-            self.dispatch(pass, pipeline, self.n);
+        self.dispatch_groups(pass, &p.arm, 1, "arm");
+        // Over the slots, not the cells: each clears the cell it was binned in.
+        self.dispatch(pass, &p.clear_bins, self.n, "clear_bins");
+        for (pipeline, name) in [(&p.bin, "bin"), (&p.build, "build"), (&p.commit, "commit")] {
+            self.dispatch(pass, pipeline, self.n, name);
         }
     }
 
@@ -716,6 +761,7 @@ impl GpuWorld {
     fn run_steps(&mut self, steps: u64, slab: Option<SlabFrame>) -> Result<(), GpuError> {
         let mut left = steps;
         while left > 0 {
+            let encoding = Instant::now();
             let chunk = left.min(STEPS_PER_SUBMIT);
             // The CPU engine records a step's loads when its count after the step is a
             // multiple of the interval (and never the Verlet start-up's).
@@ -739,13 +785,16 @@ impl GpuWorld {
                     label: Some("steps"),
                     timestamp_writes: None,
                 });
+                if let Some(profiler) = &self.profiler {
+                    lock(profiler).begin(&mut pass);
+                }
                 pass.set_bind_group(0, &self.main_group, &[]);
                 let mut evaluation = 0;
                 if startup {
                     pass.set_bind_group(1, &self.start_params, &[]);
                     self.set_frames(&mut pass, &mut evaluation);
                     self.rebuild_phase(&mut pass);
-                    self.dispatch(&mut pass, &self.pipelines.forces, self.n);
+                    self.dispatch(&mut pass, &self.pipelines.forces, self.n, "forces");
                 }
                 self.forces_current = true;
                 pass.set_bind_group(1, &self.step_params, &[]);
@@ -754,6 +803,10 @@ impl GpuWorld {
                 }
             }
             self.queue.submit([encoder.finish()]);
+            if let Some(profiler) = &self.profiler {
+                let encoding = encoding.elapsed();
+                lock(profiler).end(&self.device, &self.queue, chunk, encoding)?;
+            }
             for _ in 0..chunk {
                 self.time += self.time_step;
             }
@@ -908,17 +961,17 @@ impl GpuWorld {
         let p = &self.pipelines;
         self.set_frames(pass, evaluation);
         if self.integrator == Integrator::VelocityVerlet {
-            self.dispatch(pass, &p.kick_drift, self.n);
+            self.dispatch(pass, &p.kick_drift, self.n, "kick_drift");
         }
         self.rebuild_phase(pass);
-        self.dispatch(pass, &p.forces, self.n);
+        self.dispatch(pass, &p.forces, self.n, "forces");
         if record {
-            pass.set_pipeline(&p.reduce_loads);
-            pass.dispatch_workgroups(self.movers.len() as u32, 1, 1);
+            let movers = self.movers.len() as u32;
+            self.dispatch_groups(pass, &p.reduce_loads, movers, "reduce_loads");
         }
         match self.integrator {
-            Integrator::SymplecticEuler => self.dispatch(pass, &p.euler, self.n),
-            Integrator::VelocityVerlet => self.dispatch(pass, &p.half_kick, self.n),
+            Integrator::SymplecticEuler => self.dispatch(pass, &p.euler, self.n, "euler"),
+            Integrator::VelocityVerlet => self.dispatch(pass, &p.half_kick, self.n, "half_kick"),
         }
     }
 
@@ -936,6 +989,7 @@ impl GpuWorld {
 
     /// The first `size` bytes of `buffer`.
     fn read_prefix<T: Pod>(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<T>, GpuError> {
+        let started = Instant::now();
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read back"),
             size,
@@ -961,6 +1015,9 @@ impl GpuWorld {
             .map_err(|e| GpuError::Lost(e.to_string()))?;
         let data = bytemuck::cast_slice::<u8, T>(&slice.get_mapped_range()).to_vec();
         staging.unmap();
+        if let Some(profiler) = &self.profiler {
+            lock(profiler).read_back(started.elapsed());
+        }
         Ok(data)
     }
 
@@ -1016,7 +1073,7 @@ impl GpuWorld {
             pass.set_bind_group(0, &self.main_group, &[]);
             pass.set_bind_group(1, &self.step_params, &[]);
             pass.set_bind_group(2, &self.frames_group, &[0]);
-            self.dispatch(&mut pass, &self.pipelines.fastest, self.n);
+            self.dispatch(&mut pass, &self.pipelines.fastest, self.n, "fastest");
         }
         self.queue.submit([encoder.finish()]);
         let words = self.control()?;

@@ -73,7 +73,7 @@ struct Tri {
 @group(0) @binding(8) var<storage, read_write> nbn: array<u32>;
 @group(0) @binding(9) var<storage, read_write> spr: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> nbr2: array<u32>;
-@group(0) @binding(11) var<storage, read_write> nbn2: array<u32>;
+@group(0) @binding(11) var<storage, read_write> binned: array<u32>; // cell at the last binning
 @group(0) @binding(12) var<storage, read_write> spr2: array<vec4<f32>>;
 @group(0) @binding(13) var<storage, read_write> bins: array<u32>;
 @group(0) @binding(14) var<storage, read_write> binn: array<atomic<u32>>;
@@ -425,13 +425,16 @@ fn rebuilding() -> bool {
     return atomicLoad(&ctl[7]) != 0u;
 }
 
+// Empties the bins the last rebuild filled: each slot's cell then (`binned`). A slot whose
+// grain was removed or never binned clears a cell that is empty or is cleared anyway; every
+// clear comes before any binning, so an empty grid costs nothing per cell.
 @compute @workgroup_size(WG)
 fn clear_bins(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let c = gid.x;
-    if (!rebuilding() || c >= P.ncells) {
+    let i = gid.x;
+    if (!rebuilding() || i >= P.n) {
         return;
     }
-    atomicStore(&binn[c], 0u);
+    atomicStore(&binn[binned[i]], 0u);
 }
 
 @compute @workgroup_size(WG)
@@ -441,6 +444,7 @@ fn bin(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let c = cell_index(cell[i].xyz);
+    binned[i] = c;
     let slot = atomicAdd(&binn[c], 1u);
     if (slot < BIN) {
         bins[c * BIN + slot] = i;
@@ -542,7 +546,7 @@ fn build(@builtin(global_invocation_id) gid: vec3<u32>) {
             spr2[slot(i, CAP + a)] = r;
         }
     }
-    nbn2[i] = count;
+    nbn[i] = count; // its old count was read above; `commit` reads the new one
 }
 
 @compute @workgroup_size(WG)
@@ -552,8 +556,7 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     disp[i] = vec4<f32>(0.0);
-    let count = nbn2[i];
-    nbn[i] = count;
+    let count = nbn[i];
     for (var a = 0u; a < count; a++) {
         nbr[slot(i, a)] = nbr2[slot(i, a)];
         spr[slot(i, a)] = spr2[slot(i, a)];
