@@ -15,8 +15,11 @@
 # adapter; build it with `cargo test --release -p repose-engine-gpu --test gpu --no-run` and
 # strip it). DRILL: drill the `fast` bed on the GPU after the benchmark (default 1). SHEAR: the
 # `fast` shear test on the GPU after that (sample and three stages; default 1). BUDGET_S:
-# the seconds the whole script may take; `fine` gets what is left. Every figure is printed; the
-# runs' result.json files are under $WORK (default /tmp/repose-gpu).
+# the seconds the whole script may take; `fine` gets what is left, as its wall-time cap (a run
+# that reaches it ends cleanly and reports how far it got). PROFILE: first time every kernel of
+# a `fast`, a `paper-scale` and a `fine` funnel, each for PROFILE_S seconds of wall time
+# (REPOSE_GPU_PROFILE=1; default 0, 30 s). PAPER: the paper-scale funnel (default 1). Every
+# figure is printed; the runs' result.json files are under $WORK (default /tmp/repose-gpu).
 set -u
 REPOSE=${REPOSE:-repose}
 SEEDS=${SEEDS:-12}
@@ -25,6 +28,9 @@ BENCH=${BENCH:-1}
 TESTS=${TESTS:-}
 DRILL=${DRILL:-1}
 SHEAR=${SHEAR:-1}
+PROFILE=${PROFILE:-0}
+PROFILE_S=${PROFILE_S:-30}
+PAPER=${PAPER:-1}
 BUDGET_S=${BUDGET_S:-560}
 WORK=${WORK:-/tmp/repose-gpu}
 T0=$(date +%s)
@@ -51,6 +57,15 @@ if [ -n "$TESTS" ]; then
     stamp "the GPU crate's tests on this adapter"
     REPOSE_REQUIRE_GPU=1 timeout -s KILL 120 "$TESTS" --test-threads 1 --nocapture 2>&1 |
         grep -E "^test |test result|panicked|GPU:|theory|CPU law|CPU |error" | head -80
+fi
+if [ "$PROFILE" = 1 ]; then
+    for preset in fast paper-scale fine; do
+        stamp "$preset funnel on the GPU, every kernel timed, $PROFILE_S s of wall time"
+        REPOSE_GPU_PROFILE=1 timeout -s KILL $((PROFILE_S + 60)) "$REPOSE" aor --backend gpu \
+            --preset $preset --set wall_time_cap=$PROFILE_S --out "$WORK/profile-$preset" --quiet \
+            2>&1 >/dev/null | grep -v XDG_RUNTIME_DIR
+        summary "$WORK/profile-$preset/result.json"
+    done
 fi
 if [ "$BENCH" = 1 ]; then
     B="timeout -s KILL"
@@ -84,13 +99,17 @@ if [ "$CPU_SEEDS" = 1 ]; then
     wait
     summary "$WORK"/cpu-fast-*/result.json
 fi
-stamp "paper-scale funnel on the GPU, alone"
-timeout -s KILL 150 "$REPOSE" aor --backend gpu --preset paper-scale --out "$WORK/gpu-paper-scale" --quiet >/dev/null 2>&1
-summary "$WORK/gpu-paper-scale/result.json"
-left=$(( BUDGET_S - $(elapsed) ))
-stamp "fine funnel on the GPU, alone, $left s left"
+if [ "$PAPER" = 1 ]; then
+    stamp "paper-scale funnel on the GPU, alone"
+    timeout -s KILL 150 "$REPOSE" aor --backend gpu --preset paper-scale --out "$WORK/gpu-paper-scale" --quiet >/dev/null 2>&1
+    summary "$WORK/gpu-paper-scale/result.json"
+fi
+left=$(( BUDGET_S - $(elapsed) - 15 ))
+stamp "fine funnel on the GPU, alone, capped at $left s of wall time"
 if [ "$left" -gt 30 ]; then
-    timeout -s KILL "$left" "$REPOSE" aor --backend gpu --preset fine --out "$WORK/gpu-fine" --quiet >/dev/null 2>&1
+    timeout -s KILL $((left + 15)) "$REPOSE" aor --backend gpu --preset fine --set wall_time_cap=$left \
+        --out "$WORK/gpu-fine" --quiet >/dev/null 2>&1
     summary "$WORK/gpu-fine/result.json"
+    python3 -c "import json; d = json.load(open('$WORK/gpu-fine/result.json')); print('fine:', d['grains']['inserted'], 'inserted by', d.get('insertion_end_s'), 's;', d['steps'], 'steps,', round(d['steps'] / d['wall_time_s']), 'steps/s')" 2>&1
 fi
 stamp "done"
