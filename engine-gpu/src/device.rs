@@ -10,6 +10,8 @@ pub struct Gpu {
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
     profiling: bool,
+    /// Held while a world is built under the device's error scopes (one stack per device).
+    pub(crate) error_scopes: std::sync::Mutex<()>,
 }
 
 /// The features a profile needs: timestamps between the kernels of a compute pass.
@@ -90,6 +92,7 @@ impl Gpu {
             info,
             limits,
             profiling,
+            error_scopes: std::sync::Mutex::new(()),
         })
     }
 

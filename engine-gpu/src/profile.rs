@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use crate::GpuError;
 
-/// Timestamps one submission can hold: a step writes at most nine, a submission holds 100
+/// Timestamps one submission can hold: a step writes at most seven, a submission holds 25
 /// steps and a velocity Verlet start-up.
 const QUERIES: u32 = 1024;
 

@@ -23,7 +23,7 @@ use crate::{Gpu, GpuError};
 const SHADER: &str = include_str!("shaders/dem.wgsl");
 
 /// Steps encoded into one command buffer.
-const STEPS_PER_SUBMIT: u64 = 100;
+const STEPS_PER_SUBMIT: u64 = 25;
 
 /// Load records (one per recorded force evaluation, each a force and a torque per moving
 /// geometry) the device holds before the host reads them back.
@@ -47,11 +47,9 @@ mod ctl {
 }
 
 struct Pipelines {
-    clear_bins: wgpu::ComputePipeline,
     bin: wgpu::ComputePipeline,
     build: wgpu::ComputePipeline,
     commit: wgpu::ComputePipeline,
-    arm: wgpu::ComputePipeline,
     forces: wgpu::ComputePipeline,
     euler: wgpu::ComputePipeline,
     kick_drift: wgpu::ComputePipeline,
@@ -247,6 +245,9 @@ impl GpuWorld {
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         // Allocation and pipeline errors come back as errors, not as wgpu's default panic.
+        // A device's error scopes are one stack, whichever thread pushes: worlds built at
+        // once on one GPU (a worker's slots) take turns, so each pops its own.
+        let _scopes = gpu.error_scopes.lock().unwrap_or_else(|e| e.into_inner());
         device.push_error_scope(wgpu::ErrorFilter::Validation);
         device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let storage = wgpu::BufferUsages::STORAGE
@@ -291,7 +292,7 @@ impl GpuWorld {
         let nbn = zeroed("nbn", n64 * 4);
         let spr = zeroed("spr", list * 16 * springs);
         let nbr2 = zeroed("nbr2", list * 4);
-        // The cell each slot was binned in at the last rebuild (`clear_bins` empties those).
+        // The cell each slot was binned in at the last rebuild (`commit` empties those).
         let binned = zeroed("binned", n64 * 4);
         let spr2 = zeroed("spr2", list * 16 * springs);
         let cells = scene.grid.cells() as u64;
@@ -423,11 +424,9 @@ impl GpuWorld {
             })
         };
         let pipelines = Pipelines {
-            clear_bins: pipeline("clear_bins", &layout),
             bin: pipeline("bin", &layout),
             build: pipeline("build", &layout),
             commit: pipeline("commit", &layout),
-            arm: pipeline("arm", &layout),
             forces: pipeline("forces", &layout),
             euler: pipeline("euler", &layout),
             kick_drift: pipeline("kick_drift", &layout),
@@ -435,10 +434,13 @@ impl GpuWorld {
             fastest: pipeline("fastest", &layout),
             reduce_loads: pipeline("reduce_loads", &layout),
         };
-        if let Some(e) = pollster::block_on(device.pop_error_scope()) {
+        let out_of_memory = pollster::block_on(device.pop_error_scope());
+        let invalid = pollster::block_on(device.pop_error_scope());
+        drop(_scopes);
+        if let Some(e) = out_of_memory {
             return Err(GpuError::Capacity(format!("allocating {bytes} bytes: {e}")));
         }
-        if let Some(e) = pollster::block_on(device.pop_error_scope()) {
+        if let Some(e) = invalid {
             return Err(GpuError::Lost(format!("creating the pipelines: {e}")));
         }
         let profiler = gpu
@@ -667,13 +669,12 @@ impl GpuWorld {
         }
     }
 
-    /// Decides whether this step rebuilds the neighbour lists and runs the rebuild kernels
-    /// (each a no-op unless it does: no GPU-written dispatch sizes, no read-back).
+    /// The rebuild kernels: each a no-op unless a grain moved half a skin since the last
+    /// rebuild or grains were inserted (the request word the step's `forces` resets; no
+    /// GPU-written dispatch sizes, no read-back). `commit` also empties the bins `bin` filled,
+    /// so no kernel runs over the grid's cells.
     fn rebuild_phase(&self, pass: &mut wgpu::ComputePass) {
         let p = &self.pipelines;
-        self.dispatch_groups(pass, &p.arm, 1, "arm");
-        // Over the slots, not the cells: each clears the cell it was binned in.
-        self.dispatch(pass, &p.clear_bins, self.n, "clear_bins");
         for (pipeline, name) in [(&p.bin, "bin"), (&p.build, "build"), (&p.commit, "commit")] {
             self.dispatch(pass, pipeline, self.n, name);
         }

@@ -419,22 +419,13 @@ fn pair_contact(a: u32, b: u32, spring_in: vec4<f32>, rolling_in: vec3<f32>) -> 
     return o;
 }
 
-// ---- neighbour rebuild: dispatched every step, a no-op unless `arm` decided to rebuild ----
+// ---- neighbour rebuild: dispatched every step, a no-op unless a grain moved half a skin ----
+//
+// `drift` (or the host, after an insertion) sets ctl[0]; the rebuild kernels read it and the
+// step's `forces` resets it (counting the rebuild), so no kernel of its own decides.
 
 fn rebuilding() -> bool {
-    return atomicLoad(&ctl[7]) != 0u;
-}
-
-// Empties the bins the last rebuild filled: each slot's cell then (`binned`). A slot whose
-// grain was removed or never binned clears a cell that is empty or is cleared anyway; every
-// clear comes before any binning, so an empty grid costs nothing per cell.
-@compute @workgroup_size(WG)
-fn clear_bins(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = gid.x;
-    if (!rebuilding() || i >= P.n) {
-        return;
-    }
-    atomicStore(&binn[binned[i]], 0u);
+    return atomicLoad(&ctl[0]) != 0u;
 }
 
 @compute @workgroup_size(WG)
@@ -556,6 +547,10 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     disp[i] = vec4<f32>(0.0);
+    // Empty the bins for the next rebuild (`build` has read them): each slot clears the cell
+    // it was binned in. A slot whose grain was removed or never binned clears a cell that is
+    // empty or cleared anyway, so the grid's cells cost nothing.
+    atomicStore(&binn[binned[i]], 0u);
     let count = nbn[i];
     for (var a = 0u; a < count; a++) {
         nbr[slot(i, a)] = nbr2[slot(i, a)];
@@ -563,16 +558,6 @@ fn commit(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (epsd()) {
             spr[slot(i, CAP + a)] = spr2[slot(i, CAP + a)];
         }
-    }
-}
-
-// Decides, once per step, whether this step rebuilds (a particle moved half a skin).
-@compute @workgroup_size(1)
-fn arm() {
-    let wanted = atomicExchange(&ctl[0], 0u);
-    atomicStore(&ctl[7], wanted);
-    if (wanted != 0u) {
-        atomicAdd(&ctl[1], 1u);
     }
 }
 
@@ -818,6 +803,11 @@ fn slab_share(i: u32, j: u32, force_on_i: vec3<f32>) -> vec3<f32> {
 @compute @workgroup_size(WG)
 fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
+    // The rebuild kernels before this one have read the request: reset it for the step's
+    // moves, counting the rebuild.
+    if (i == 0u && atomicExchange(&ctl[0], 0u) != 0u) {
+        atomicAdd(&ctl[1], 1u);
+    }
     if (i >= P.n) {
         return;
     }

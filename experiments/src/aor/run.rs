@@ -641,12 +641,12 @@ pub fn run_aor_on(
     let wall_time = || spent_before + started.elapsed().as_secs_f64();
     let mut last_save = Instant::now();
     let mut ended_by: Option<EndedBy> = None;
-    const REPORT_EVERY: u64 = 200;
+    let report_every = backend.steps_between_reports();
 
     while ended_by.is_none() {
         // The loop looks at the state after the steps below (a report, an outflow sample, a
         // check, the deadline); a backend may take the steps up to the first of them at once.
-        let next_report = REPORT_EVERY - backend.steps() % REPORT_EVERY;
+        let next_report = report_every - backend.steps() % report_every;
         let (t, dt) = (backend.time(), backend.time_step());
         let mut at_most = next_report;
         if spec.protocol == Protocol::Funnel {
@@ -678,7 +678,7 @@ pub fn run_aor_on(
             state.below_outlet.push((t, below));
         }
         let is_check = t >= state.next_check;
-        if backend.steps() % REPORT_EVERY == 0 || is_check {
+        if backend.steps() % report_every == 0 || is_check {
             let (phase, fraction) = match state.insertion_end {
                 None => {
                     let (_, mass, _) = factory_state(backend);
@@ -743,7 +743,7 @@ pub fn run_aor_on(
         if ended_by.is_none() && t >= state.deadline {
             ended_by = Some(EndedBy::TimeCap);
         }
-        if ended_by.is_none() && backend.steps() % REPORT_EVERY == 0 {
+        if ended_by.is_none() && backend.steps() % backend.steps_between_reports() == 0 {
             if let Some(cap) = spec.wall_time_cap {
                 if wall_time() > cap {
                     ended_by = Some(EndedBy::WallTimeCap);

@@ -367,6 +367,11 @@ impl Backend for GpuBackend {
         self.scene.config().time_step
     }
 
+    /// 2,000 steps: a fraction of a second on a GPU, a read-back each.
+    fn steps_between_reports(&self) -> u64 {
+        2_000
+    }
+
     fn advance(&mut self, max_steps: u64) -> Result<u64, BackendError> {
         let steps = max_steps.clamp(1, SERVE_EVERY - self.since_serve);
         self.gpu_world.run(steps)?;

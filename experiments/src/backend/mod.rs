@@ -194,6 +194,12 @@ pub trait Backend {
     /// end of a call.
     fn advance(&mut self, max_steps: u64) -> Result<u64, BackendError>;
 
+    /// Steps between two progress reports of a run loop: each report counts the grains,
+    /// which a GPU backend reads back (a stall), so it reports less often per step.
+    fn steps_between_reports(&self) -> u64 {
+        200
+    }
+
     /// The grains now (a GPU backend reads them back).
     fn grains(&mut self) -> Result<Grains<'_>, BackendError>;
 

@@ -24,7 +24,7 @@ use crate::soil::advance_to_check;
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
     BedError, BedInfo, BedMismatch, HeightField, NoBedStore, On, OnBed, SettledBed, SettledBy,
-    SplitMix, REPORT_EVERY,
+    SplitMix,
 };
 
 /// Why a run could not start or was stopped before it could report (a finished run whose soil
@@ -477,7 +477,7 @@ fn drill(
             }
         }
         let came_to_rest = settled_by != SettledBy::TimeCap;
-        if backend.steps() % REPORT_EVERY == 0 || is_check {
+        if backend.steps() % backend.steps_between_reports() == 0 || is_check {
             let phase = if t < t_feed {
                 "feeding"
             } else if t < t_withdraw {

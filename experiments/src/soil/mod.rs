@@ -15,7 +15,6 @@ pub use bed::{
 };
 pub(crate) use recipe::{
     advance_to_check, bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix,
-    REPORT_EVERY,
 };
 pub use recipe::{BedError, BedInfo, BedProgress, BedRecipe, BedSpec, BinSpec, SurfaceReading};
 pub(crate) use spec::{

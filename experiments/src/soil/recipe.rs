@@ -504,7 +504,7 @@ fn build_bed(
             }
         }
         let settled = settled_by != SettledBy::TimeCap;
-        if backend.steps() % REPORT_EVERY == 0 || is_check {
+        if backend.steps() % backend.steps_between_reports() == 0 || is_check {
             let control = progress(BedProgress {
                 fraction: if settled {
                     1.0
@@ -523,7 +523,9 @@ fn build_bed(
             break;
         }
         if let Some(cap) = recipe.wall_time_cap {
-            if backend.steps() % REPORT_EVERY == 0 && started.elapsed().as_secs_f64() > cap {
+            if backend.steps() % backend.steps_between_reports() == 0
+                && started.elapsed().as_secs_f64() > cap
+            {
                 return Err(BedError::WallTimeCap { cap_s: cap });
             }
         }
@@ -551,17 +553,15 @@ fn build_bed(
     })
 }
 
-/// Steps between two progress reports (and wall-time checks) of a soil run.
-pub(crate) const REPORT_EVERY: u64 = 200;
-
 /// Advances a soil run's `backend` up to the first of the check at `next_check` (s) and the
-/// next progress report (every [`REPORT_EVERY`] steps), the states its loop looks at: a
+/// next progress report ([`Backend::steps_between_reports`]), the states its loop looks at: a
 /// backend may take those steps at once (the CPU engine takes one). Returns the time reached.
 pub(crate) fn advance_to_check(
     backend: &mut dyn Backend,
     next_check: f64,
 ) -> Result<f64, BackendError> {
-    let report_in = REPORT_EVERY - backend.steps() % REPORT_EVERY;
+    let every = backend.steps_between_reports();
+    let report_in = every - backend.steps() % every;
     let (t, dt) = (backend.time(), backend.time_step());
     backend.advance(steps_until(t, dt, next_check, report_in))?;
     Ok(backend.time())

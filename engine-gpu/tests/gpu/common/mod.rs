@@ -1,12 +1,17 @@
 //! Opening the test GPU: any Vulkan/Metal/DX12 adapter (Mesa's lavapipe in CI).
 
+use std::sync::OnceLock;
+
 use repose_engine_gpu::{Gpu, GpuError};
 
 /// The GPU, or `None` with a message on stderr where no adapter can be created at all (the
 /// test then checks nothing and says so). `REPOSE_REQUIRE_GPU=1` (set by `.ci/run`, which
-/// installs lavapipe) turns that into a failure.
-pub fn gpu() -> Option<Gpu> {
-    match Gpu::open() {
+/// installs lavapipe) turns that into a failure. Opened once per test process and shared, as a
+/// worker shares its GPU: NVIDIA's Vulkan driver (580.159.04, H200) refused a 30th device in
+/// one process.
+pub fn gpu() -> Option<&'static Gpu> {
+    static GPU: OnceLock<Option<Gpu>> = OnceLock::new();
+    GPU.get_or_init(|| match Gpu::open() {
         Ok(gpu) => {
             eprintln!("GPU: {}", gpu.describe());
             Some(gpu)
@@ -19,7 +24,8 @@ pub fn gpu() -> Option<Gpu> {
             None
         }
         Err(e) => panic!("{e}"),
-    }
+    })
+    .as_ref()
 }
 
 /// One material, "grain" (2500 kg/m³, E 1e8 Pa, ν 0.3), against itself with restitution 0.5,
