@@ -1,25 +1,26 @@
 #!/usr/bin/env bash
 # The GPU backend's speed figures on a machine with a GPU and no Rust toolchain, in one call
-# (issue 38): the engine benchmark at 20 k, 200 k and 2 M grains (GPU against the CPU engine on
-# the same bed), then the funnel on the GPU at `fast` (seeds 1-N, one process at a time: several
-# GPU processes at once hung on an H200), `paper-scale` and `fine`, each alone and each under a
-# hard time limit, so a hung run costs its limit and not the call.
+# (issue 38), most wanted first, each run alone (several GPU processes at once hung on an H200)
+# and under a hard time limit, so a hung run costs its limit and not the call: the GPU crate's
+# tests (TESTS), kernel profiles (PROFILE), the `paper-scale` funnel, the `fine` funnel, the
+# engine benchmark at 20 k, 200 k and 2 M grains (GPU against the CPU engine on the same bed),
+# the `fast` funnel's seeds on both engines, the `fast` drill and the `fast` shear test. A part
+# that no longer fits BUDGET_S is skipped and says so.
 #
 #   REPOSE=path/to/repose BUDGET_S=560 bash bench/gpu/run.sh
 #
 # REPOSE: a release build (strip it to carry it: CARGO_PROFILE_RELEASE_DEBUG=0
-# CARGO_PROFILE_RELEASE_STRIP=symbols cargo build --release -p repose). SEEDS: fast seeds
-# (default 12). CPU_SEEDS: also pour the fast seeds on the CPU engine, all at once, one thread
-# each (default 1). BENCH: run the engine benchmark first (default 1). TESTS: a test binary of
-# the GPU crate to run first, one test at a time under a limit (the analytic checks on this
-# adapter; build it with `cargo test --release -p repose-engine-gpu --test gpu --no-run` and
-# strip it). DRILL: drill the `fast` bed on the GPU after the benchmark (default 1). SHEAR: the
-# `fast` shear test on the GPU after that (sample and three stages; default 1). BUDGET_S:
-# the seconds the whole script may take; `fine` gets what is left, as its wall-time cap (a run
-# that reaches it ends cleanly and reports how far it got). PROFILE: first time every kernel of
-# a `fast`, a `paper-scale` and a `fine` funnel, each for PROFILE_S seconds of wall time
-# (REPOSE_GPU_PROFILE=1; default 0, 30 s). PAPER: the paper-scale funnel (default 1). Every
-# figure is printed; the runs' result.json files are under $WORK (default /tmp/repose-gpu).
+# CARGO_PROFILE_RELEASE_STRIP=symbols cargo build --release -p repose). TESTS: a test binary of
+# the GPU crate, run first (the analytic checks on this adapter; build it with `cargo test
+# --release -p repose-engine-gpu --test gpu --no-run` and strip it). PROFILE: time every kernel
+# of the funnels in PROFILE_PRESETS (default `fast paper-scale fine`) for PROFILE_S seconds of
+# wall time each (REPOSE_GPU_PROFILE=1; default 0, 30 s). PAPER: the paper-scale funnel
+# (default 1). FINE_S: the `fine` funnel's wall-time cap (default 240; a run that reaches it
+# ends cleanly and reports how far it got). BENCH: the engine benchmark (default 1). SEEDS:
+# `fast` funnel seeds on the GPU (default 12); CPU_SEEDS: the same seeds on the CPU engine, all
+# at once, one thread each (default 1). DRILL, SHEAR: the `fast` drill and shear test on the GPU
+# (default 1). BUDGET_S: the seconds the whole script may take. Every figure is printed; the
+# runs' result.json files are under $WORK (default /tmp/repose-gpu).
 set -u
 REPOSE=${REPOSE:-repose}
 SEEDS=${SEEDS:-12}
@@ -30,12 +31,20 @@ DRILL=${DRILL:-1}
 SHEAR=${SHEAR:-1}
 PROFILE=${PROFILE:-0}
 PROFILE_S=${PROFILE_S:-30}
+PROFILE_PRESETS=${PROFILE_PRESETS:-fast paper-scale fine}
 PAPER=${PAPER:-1}
+FINE_S=${FINE_S:-240}
 BUDGET_S=${BUDGET_S:-560}
 WORK=${WORK:-/tmp/repose-gpu}
 T0=$(date +%s)
 elapsed() { echo $(( $(date +%s) - T0 )); }
 stamp() { echo "== $(elapsed) s: $*"; }
+# fits N WHAT: whether N more seconds fit the budget (else says WHAT is skipped).
+fits() {
+    if [ $(( $(elapsed) + $1 )) -le "$BUDGET_S" ]; then return 0; fi
+    stamp "skipped: $2 (needs $1 s, $(( BUDGET_S - $(elapsed) )) s left)"
+    return 1
+}
 mkdir -p "$WORK"
 summary() {
     python3 - "$@" <<'PY'
@@ -59,7 +68,8 @@ if [ -n "$TESTS" ]; then
         grep -E "^test |test result|panicked|GPU:|theory|CPU law|CPU |error" | head -80
 fi
 if [ "$PROFILE" = 1 ]; then
-    for preset in fast paper-scale fine; do
+    for preset in $PROFILE_PRESETS; do
+        fits $((PROFILE_S + 15)) "the $preset profile" || continue
         stamp "$preset funnel on the GPU, every kernel timed, $PROFILE_S s of wall time"
         REPOSE_GPU_PROFILE=1 timeout -s KILL $((PROFILE_S + 60)) "$REPOSE" aor --backend gpu \
             --preset $preset --set wall_time_cap=$PROFILE_S --out "$WORK/profile-$preset" --quiet \
@@ -67,49 +77,61 @@ if [ "$PROFILE" = 1 ]; then
         summary "$WORK/profile-$preset/result.json"
     done
 fi
-if [ "$BENCH" = 1 ]; then
-    B="timeout -s KILL"
-    stamp "engine benchmark, 20 k"
-    $B 60 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 20000 --steps 5000 --cpu-steps 200
-    stamp "engine benchmark, 200 k"
-    $B 90 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 200000 --steps 2000 --cpu-steps 40
-    stamp "engine benchmark, 2 M"
-    $B 150 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 2000000 --steps 500 --cpu-steps 10
-fi
-if [ "$DRILL" = 1 ]; then
-    stamp "fast drill on the GPU (bed and drilling), alone"
-    timeout -s KILL 60 "$REPOSE" drill --backend gpu --preset fast --out "$WORK/gpu-drill" --quiet >/dev/null 2>&1
-    python3 -c "import json; d = json.load(open('$WORK/gpu-drill/result.json')); print({k: d.get(k) for k in ['status', 'opening_diameter_mm', 'effective_depth_mm', 'mean_feed_torque_nm', 'energy_j', 'steps', 'wall_time_s', 'engine_version']}, 'bed', d['bed']['wall_time_s'])" 2>&1
-fi
-if [ "$SHEAR" = 1 ]; then
-    stamp "fast shear test on the GPU (sample and stages), alone"
-    timeout -s KILL 90 "$REPOSE" shear --backend gpu --preset fast --out "$WORK/gpu-shear" --quiet >/dev/null 2>&1
-    python3 -c "import json; d = json.load(open('$WORK/gpu-shear/result.json')); print({k: d.get(k) for k in ['status', 'cohesion_kpa', 'friction_angle_deg', 'steps', 'wall_time_s', 'engine_version']}, 'peaks', [round(s['window_peak_kpa'], 3) for s in d['stages']], 'bed', d['bed']['wall_time_s'])" 2>&1
-fi
-stamp "fast funnel on the GPU, seeds 1-$SEEDS, one at a time"
-for s in $(seq 1 "$SEEDS"); do
-    timeout -s KILL 30 "$REPOSE" aor --backend gpu --preset fast --set seed=$s --out "$WORK/gpu-fast-$s" --quiet >/dev/null 2>&1
-done
-summary "$WORK"/gpu-fast-*/result.json
-if [ "$CPU_SEEDS" = 1 ]; then
-    stamp "fast funnel on the CPU engine, seeds 1-$SEEDS, all at once, one thread each"
-    for s in $(seq 1 "$SEEDS"); do
-        timeout -s KILL 120 "$REPOSE" aor --preset fast --set seed=$s --threads 1 --out "$WORK/cpu-fast-$s" --quiet >/dev/null 2>&1 &
-    done
-    wait
-    summary "$WORK"/cpu-fast-*/result.json
-fi
-if [ "$PAPER" = 1 ]; then
+if [ "$PAPER" = 1 ] && fits 60 "the paper-scale funnel"; then
     stamp "paper-scale funnel on the GPU, alone"
     timeout -s KILL 150 "$REPOSE" aor --backend gpu --preset paper-scale --out "$WORK/gpu-paper-scale" --quiet >/dev/null 2>&1
     summary "$WORK/gpu-paper-scale/result.json"
 fi
-left=$(( BUDGET_S - $(elapsed) - 15 ))
-stamp "fine funnel on the GPU, alone, capped at $left s of wall time"
-if [ "$left" -gt 30 ]; then
-    timeout -s KILL $((left + 15)) "$REPOSE" aor --backend gpu --preset fine --set wall_time_cap=$left \
+cap=$(( BUDGET_S - $(elapsed) - 15 ))
+cap=$(( cap < FINE_S ? cap : FINE_S ))
+if [ "$cap" -gt 30 ]; then
+    stamp "fine funnel on the GPU, alone, capped at $cap s of wall time"
+    timeout -s KILL $((cap + 15)) "$REPOSE" aor --backend gpu --preset fine --set wall_time_cap=$cap \
         --out "$WORK/gpu-fine" --quiet >/dev/null 2>&1
     summary "$WORK/gpu-fine/result.json"
     python3 -c "import json; d = json.load(open('$WORK/gpu-fine/result.json')); print('fine:', d['grains']['inserted'], 'inserted by', d.get('insertion_end_s'), 's;', d['steps'], 'steps,', round(d['steps'] / d['wall_time_s']), 'steps/s')" 2>&1
+else
+    stamp "skipped: the fine funnel ($cap s left)"
+fi
+if [ "$BENCH" = 1 ]; then
+    B="timeout -s KILL"
+    if fits 40 "the 20 k benchmark"; then
+        stamp "engine benchmark, 20 k"
+        $B 60 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 20000 --steps 5000 --cpu-steps 200
+    fi
+    if fits 60 "the 200 k benchmark"; then
+        stamp "engine benchmark, 200 k"
+        $B 90 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 200000 --steps 2000 --cpu-steps 40
+    fi
+    if fits 100 "the 2 M benchmark"; then
+        stamp "engine benchmark, 2 M"
+        $B 150 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 2000000 --steps 500 --cpu-steps 10
+    fi
+fi
+if [ "$SEEDS" -gt 0 ] && fits $(( 5 * SEEDS + 20 )) "the fast funnel's seeds"; then
+    stamp "fast funnel on the GPU, seeds 1-$SEEDS, one at a time"
+    for s in $(seq 1 "$SEEDS"); do
+        timeout -s KILL 30 "$REPOSE" aor --backend gpu --preset fast --set seed=$s --out "$WORK/gpu-fast-$s" --quiet >/dev/null 2>&1
+    done
+    summary "$WORK"/gpu-fast-*/result.json
+    if [ "$CPU_SEEDS" = 1 ]; then
+        stamp "fast funnel on the CPU engine, seeds 1-$SEEDS, all at once, one thread each"
+        for s in $(seq 1 "$SEEDS"); do
+            timeout -s KILL 120 "$REPOSE" aor --preset fast --set seed=$s --threads 1 --out "$WORK/cpu-fast-$s" --quiet >/dev/null 2>&1 &
+        done
+        wait
+        summary "$WORK"/cpu-fast-*/result.json
+    fi
+fi
+if [ "$DRILL" = 1 ] && fits 60 "the fast drill"; then
+    stamp "fast drill on the GPU (bed and drilling), alone"
+    timeout -s KILL 60 "$REPOSE" drill --backend gpu --preset fast --out "$WORK/gpu-drill" --quiet >/dev/null 2>&1
+    python3 -c "import json; d = json.load(open('$WORK/gpu-drill/result.json')); print({k: d.get(k) for k in ['status', 'opening_diameter_mm', 'effective_depth_mm', 'mean_feed_torque_nm', 'energy_j', 'steps', 'wall_time_s', 'engine_version']}, 'bed', d['bed']['wall_time_s'])" 2>&1
+fi
+if [ "$SHEAR" = 1 ] && fits 60 "the fast shear test"; then
+    stamp "fast shear test on the GPU (sample and stages), alone"
+    left=$(( BUDGET_S - $(elapsed) ))
+    timeout -s KILL $(( left < 90 ? left : 90 )) "$REPOSE" shear --backend gpu --preset fast --out "$WORK/gpu-shear" --quiet >/dev/null 2>&1
+    python3 -c "import json; d = json.load(open('$WORK/gpu-shear/result.json')); print({k: d.get(k) for k in ['status', 'cohesion_kpa', 'friction_angle_deg', 'steps', 'wall_time_s', 'engine_version']}, 'peaks', [round(s['window_peak_kpa'], 3) for s in d['stages']], 'bed', d['bed']['wall_time_s'])" 2>&1
 fi
 stamp "done"
