@@ -16,7 +16,7 @@ fn a_bed_settles_on_the_gpu_as_on_the_cpu() {
     let Some(gpu) = common::gpu() else { return };
     let n = 600;
     let cpu = settled_bed(n, 3).unwrap();
-    let (gpu_bed, settle_steps) = repose_engine_gpu::bench::settled_bed(&gpu, n, 3).unwrap();
+    let (gpu_bed, settle_steps) = repose_engine_gpu::bench::settled_bed(gpu, n, 3).unwrap();
     let cpu_h = mean_height(cpu.particles().position.iter().map(|x| x.z));
     let gpu_h = mean_height(gpu_bed.particles().position.iter().map(|x| x.z));
     let cpu_top = cpu
@@ -53,7 +53,7 @@ fn the_same_run_twice_is_bit_identical() {
     let Some(gpu) = common::gpu() else { return };
     let (world, _) = bed_lattice(500, 5).unwrap();
     let run = || {
-        let mut w = GpuWorld::new(&gpu, &world).unwrap();
+        let mut w = GpuWorld::new(gpu, &world).unwrap();
         w.run(600).unwrap();
         w.state_bytes().unwrap()
     };
@@ -79,7 +79,7 @@ fn neighbour_lists_hold_every_touching_pair_across_periodic_faces() {
             repose_engine::math::Vec3::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.3..0.3), 0.0);
     }
     let radius = world.particles().radius.clone();
-    let mut g = GpuWorld::new(&gpu, &world).unwrap();
+    let mut g = GpuWorld::new(gpu, &world).unwrap();
     let mut touching_pairs = 0;
     for _ in 0..4 {
         g.run(50).unwrap();
@@ -171,7 +171,7 @@ fn grains_crossing_the_periodic_faces_come_back_on_the_far_side() {
             })
             .unwrap();
     }
-    let mut g = GpuWorld::new(&gpu, &world).unwrap();
+    let mut g = GpuWorld::new(gpu, &world).unwrap();
     let steps = 300;
     g.run(steps).unwrap();
     let p = g.particles().unwrap();

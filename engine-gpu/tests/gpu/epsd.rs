@@ -58,7 +58,7 @@ fn epsd_rolling_decelerates_at_five_sevenths_mu_r_g_once_plastic() {
         Vec3::new(v0, 0.0, 0.0),
         Vec3::new(0.0, v0 / R, 0.0),
     );
-    let measured = deceleration_from_50_to_200_ms(&mut on_gpu(&gpu, &scene));
+    let measured = deceleration_from_50_to_200_ms(&mut on_gpu(gpu, &scene));
     let expected = -5.0 / 7.0 * mu_r * 9.81;
     println!("EPSD deceleration {measured:.5} m/s² (theory {expected:.5})");
     assert!((measured / expected - 1.0).abs() < 0.02);
@@ -73,7 +73,7 @@ fn epsd_holds_a_sphere_on_an_incline_below_mu_r() {
     let creep = |slope: f64| {
         let theta = f64::atan(slope);
         let g = Vec3::new(9.81 * theta.sin(), 0.0, -9.81 * theta.cos());
-        let mut world = on_gpu(&gpu, &sphere_on_plane(0.2, g, Vec3::zeros(), Vec3::zeros()));
+        let mut world = on_gpu(gpu, &sphere_on_plane(0.2, g, Vec3::zeros(), Vec3::zeros()));
         world.run_until(0.1).unwrap();
         let x1 = world.particles().unwrap().position[0].x;
         let t1 = world.time();
@@ -105,7 +105,7 @@ fn epsd_springs_a_stopped_sphere_back_and_damps_it_out() {
         Vec3::new(v0, 0.0, 0.0),
         Vec3::new(0.0, omega0, 0.0),
     );
-    let mut world = on_gpu(&gpu, &scene);
+    let mut world = on_gpu(gpu, &scene);
     world.run_until(stop_time + 0.005).unwrap();
     // Largest |ω| in each of four 0.05 s windows, sampled every 40 steps.
     let mut windows = Vec::new();
@@ -146,7 +146,7 @@ fn a_small_pile_with_epsd_rolling_moves_as_on_the_cpu_engine() {
         .add_particle(ball(top, Vec3::zeros(), Vec3::new(0.0, 20.0, 5.0), R))
         .unwrap();
     let mut cpu = scene.clone();
-    let mut gpu_world = on_gpu(&gpu, &scene);
+    let mut gpu_world = on_gpu(gpu, &scene);
     let steps = (0.1 / scene.config().time_step).round() as u64;
     for _ in 0..steps {
         cpu.step();

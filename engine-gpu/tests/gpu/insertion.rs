@@ -136,11 +136,11 @@ fn grains_inserted_mid_run_fall_and_land_as_in_a_world_built_with_them() {
             particles: first.len() + added.len(),
             max_radius: R,
         };
-        let mut a = GpuWorld::with_capacity(&gpu, &with(&base, &first), capacity).unwrap();
+        let mut a = GpuWorld::with_capacity(gpu, &with(&base, &first), capacity).unwrap();
         a.run(300).unwrap();
         let slots = a.insert(&added).unwrap();
         assert_eq!(slots, (5..11).collect::<Vec<_>>());
-        let mut b = GpuWorld::with_capacity(&gpu, &with(&base, &added), capacity).unwrap();
+        let mut b = GpuWorld::with_capacity(gpu, &with(&base, &added), capacity).unwrap();
         let (pa, pb) = fall_and_land(&mut a, &mut b, &slots, &added);
         let (dx, dv) = difference(&pa, &slots, &pb);
         println!("{integrator:?}: inserted vs built with them: |Δx| {dx:.2e} m, |Δv| {dv:.2e} m/s");
@@ -186,7 +186,7 @@ fn slots_of_removed_grains_are_refilled_and_a_full_world_refuses_more() {
         particles: start.len(),
         max_radius: R,
     };
-    let mut a = GpuWorld::with_capacity(&gpu, &with(&base, &start), capacity).unwrap();
+    let mut a = GpuWorld::with_capacity(gpu, &with(&base, &start), capacity).unwrap();
     run_until_removed(&mut a, 4);
     let added: Vec<ParticleSpec> = stacks().into_iter().take(4).collect();
     let mut too_many = added.clone();
@@ -207,7 +207,7 @@ fn slots_of_removed_grains_are_refilled_and_a_full_world_refuses_more() {
     let slots = a.insert(&added).unwrap();
     assert_eq!(slots, vec![1, 2, 4, 5]);
     assert!(matches!(a.insert(&added[..1]), Err(GpuError::Capacity(_))));
-    let mut b = GpuWorld::with_capacity(&gpu, &with(&base, &added), capacity).unwrap();
+    let mut b = GpuWorld::with_capacity(gpu, &with(&base, &added), capacity).unwrap();
     let (pa, pb) = fall_and_land(&mut a, &mut b, &slots, &added);
     let (dx, dv) = difference(&pa, &slots, &pb);
     println!("refilled slots vs a world built with the grains: |Δx| {dx:.2e} m, |Δv| {dv:.2e} m/s");
@@ -224,7 +224,7 @@ fn invalid_grains_are_refused_by_name() {
         max_radius: R,
     };
     // An empty world with room for grains.
-    let mut w = GpuWorld::with_capacity(&gpu, &base, capacity).unwrap();
+    let mut w = GpuWorld::with_capacity(gpu, &base, capacity).unwrap();
     let mut big = grain(0.0, 0.0, 0.01, 0.0);
     big.radius = 1.5 * R;
     let mut unknown = grain(0.0, 0.0, 0.01, 0.0);
@@ -265,7 +265,7 @@ fn a_run_with_insertions_is_bit_identical_when_repeated() {
             max_radius: R,
         };
         let run = || {
-            let mut w = GpuWorld::with_capacity(&gpu, &world, capacity).unwrap();
+            let mut w = GpuWorld::with_capacity(gpu, &world, capacity).unwrap();
             run_until_removed(&mut w, 4);
             // Four refilled slots, two fresh ones, mid-chunk of the neighbour lists' life.
             let slots = w.insert(&stacks()).unwrap();
@@ -306,14 +306,14 @@ fn a_refilled_slot_starts_without_the_removed_grains_history() {
         particles: 1,
         max_radius: R,
     };
-    let mut a = GpuWorld::with_capacity(&gpu, &with(&base, &[slider]), capacity).unwrap();
+    let mut a = GpuWorld::with_capacity(gpu, &with(&base, &[slider]), capacity).unwrap();
     while a.counters().unwrap().removed < 1 {
         assert!(a.steps() < 3000, "the slider did not leave");
         a.run(10).unwrap();
     }
     let still = grain(0.005, 0.0, resting_z, 0.0);
     assert_eq!(a.insert(&[still]).unwrap(), vec![0]);
-    let mut b = GpuWorld::with_capacity(&gpu, &with(&base, &[still]), capacity).unwrap();
+    let mut b = GpuWorld::with_capacity(gpu, &with(&base, &[still]), capacity).unwrap();
     a.run(50).unwrap();
     b.run(50).unwrap();
     let (pa, pb) = (a.particles().unwrap(), b.particles().unwrap());

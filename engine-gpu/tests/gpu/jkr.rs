@@ -66,7 +66,7 @@ fn jkr_pulls_as_the_cpu_law_at_positive_overlaps() {
             law.attraction(r_star, overlap, || 0.0),
         );
         let expected = repel - pull;
-        let force = first_step_force(&gpu, &w, 1).x;
+        let force = first_step_force(gpu, &w, 1).x;
         println!("JKR spheres, overlap {scale} a0²/R*: {force:.7e} N (CPU law {expected:.7e} N)");
         assert!(
             (force - expected).abs() < 1e-3 * (repel + pull),
@@ -96,7 +96,7 @@ fn jkr_pulls_as_the_cpu_law_at_positive_overlaps() {
             law.attraction(R, overlap, || 0.0),
         );
         let expected = repel - pull;
-        let force = first_step_force(&gpu, &w, 0).z;
+        let force = first_step_force(gpu, &w, 0).z;
         println!("JKR on a face, overlap {scale} a0²/R*: {force:.7e} N (CPU law {expected:.7e} N)");
         assert!(
             (force - expected).abs() < 1e-3 * (repel + pull),
@@ -133,7 +133,7 @@ fn jkr_grains_pulled_apart_neck_until_they_separate_as_on_the_cpu() {
     }
     let separation = -JKR_SEPARATION * unit(e_star_same(), R / 2.0);
     let mut cpu: World = scene.clone();
-    let mut gpu_world = GpuWorld::new(&gpu, &scene).unwrap();
+    let mut gpu_world = GpuWorld::new(gpu, &scene).unwrap();
     let (mut at_zero, mut deepest_pull) = (None, 0.0);
     let (mut previous_gap, mut previous_speed) = (-1e-6, 0.1);
     let mut steps = 0;

@@ -85,7 +85,7 @@ fn a_sphere_set_down_on_a_moving_belt_rolls_at_two_sevenths_of_its_speed() {
         translating(Vec3::new(u, 0.0, 0.0)),
         Vec3::new(0.3, 0.0, 0.0),
     );
-    let mut world = GpuWorld::new(&gpu, &w).unwrap();
+    let mut world = GpuWorld::new(gpu, &w).unwrap();
     // The contact point's velocity less the belt's.
     let slip = |p: &repose_engine_gpu::GpuParticles| {
         (p.velocity[0] + p.angular_velocity[0].cross(&Vec3::new(0.0, 0.0, -R))).x - u
@@ -115,7 +115,7 @@ fn a_turntable_drags_a_resting_sphere_along_its_surface_velocity() {
         Vec3::new(radius, 0.0, 0.0),
     );
     let dt = w.config().time_step;
-    let mut world = GpuWorld::new(&gpu, &w).unwrap();
+    let mut world = GpuWorld::new(gpu, &w).unwrap();
     // 2 ms: the table's surface under the sphere moves at 1.26 m/s, the sphere reaches
     // 6 mm/s: still sliding.
     let steps = (2e-3 / dt).round() as u64;
@@ -204,7 +204,7 @@ fn a_grain_struck_by_a_turning_paddle_moves_as_on_the_cpu_engine() {
         let scene = paddle_scene(integrator);
         let start = scene.particles().position[0];
         let mut cpu = scene.clone();
-        let mut gpu_world = GpuWorld::new(&gpu, &scene).unwrap();
+        let mut gpu_world = GpuWorld::new(gpu, &scene).unwrap();
         let dt = scene.config().time_step;
         let steps = (0.2 / dt).round() as u64;
         for _ in 0..steps {
@@ -268,7 +268,7 @@ fn a_grain_struck_by_a_turning_paddle_moves_as_on_the_cpu_engine() {
                 }
                 bits
             };
-            let mut again = GpuWorld::new(&gpu, &scene).unwrap();
+            let mut again = GpuWorld::new(gpu, &scene).unwrap();
             again.run(steps).unwrap();
             let (a, b) = (bits(&mut gpu_world), bits(&mut again));
             assert_eq!(a.len() as u64, 9 + steps * 6);
@@ -301,7 +301,7 @@ fn a_moving_plate_far_from_its_origin_resolves_a_thousandth_of_a_radius() {
         let x = Vec3::new(far.x + 1e-3, far.y - 2e-3, r - overlap);
         w.add_particle(ball(x, Vec3::zeros(), Vec3::zeros(), r))
             .unwrap();
-        let mut g = GpuWorld::new(&gpu, &w).unwrap();
+        let mut g = GpuWorld::new(gpu, &w).unwrap();
         g.run(1).unwrap();
         let force = g.particles().unwrap().velocity[0] * (mass(r) / 1e-9);
         let expected = hertz(e_star_wall(), r, overlap);

@@ -156,7 +156,7 @@ fn hertz_force_against_overlap_anywhere_in_a_03_m_domain() {
         let other = origin + Vec3::new(2.0 * r - overlap, 0.0, 0.0);
         w.add_particle(ball(other, Vec3::zeros(), Vec3::zeros(), r))
             .unwrap();
-        let f = first_step_force(&gpu, &w, 0);
+        let f = first_step_force(gpu, &w, 0);
         let expected = hertz(e_star_same(), r / 2.0, overlap);
         println!(
             "overlap {fraction:e} r: GPU {:.6e} N, Hertz {expected:.6e} N",
@@ -190,7 +190,7 @@ fn linear_cohesion_pulls_with_k_times_the_area_where_the_bodies_cut() {
                 domain,
             );
             add(&mut w);
-            first_step_force(&gpu, &w, 0)
+            first_step_force(gpu, &w, 0)
         };
         force(Cohesion::None) - force(Cohesion::Linear { energy_density: k })
     };
@@ -250,7 +250,7 @@ fn a_sphere_over_a_boxs_edge_feels_the_top_face_only_as_on_the_cpu() {
         add_mesh(&mut w, generators::cuboid(0.02, 0.02, 0.02).unwrap());
         w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
             .unwrap();
-        let on_gpu = first_step_force(&gpu, &w, 0);
+        let on_gpu = first_step_force(gpu, &w, 0);
         w.step();
         let p = w.particles();
         let on_cpu = p.velocity[0] * (p.mass[0] / w.config().time_step);
@@ -298,7 +298,7 @@ fn a_sphere_on_a_triangle_face_edge_and_corner_feels_hertz_along_the_contact_nor
         let centre = point + normal * (r - overlap);
         w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
             .unwrap();
-        let f = first_step_force(&gpu, &w, 0);
+        let f = first_step_force(gpu, &w, 0);
         let expected = hertz(e_star_wall(), r, overlap);
         println!("{name}: |F| {:.6e} N, Hertz {expected:.6e} N", f.norm());
         assert!((f.norm() / expected - 1.0).abs() < 1e-3, "{name}: {f:?}");
@@ -342,7 +342,7 @@ fn two_spheres_rebound_with_the_input_restitution() {
             w.add_particle(ball(x, Vec3::new(v, 0.0, 0.0), Vec3::zeros(), r))
                 .unwrap();
         }
-        let mut g = GpuWorld::new(&gpu, &w).unwrap();
+        let mut g = GpuWorld::new(gpu, &w).unwrap();
         let mut touched = false;
         run_until(&mut g, 20, 100_000, |p, _| {
             let touching = (p.position[1] - p.position[0]).norm() < 2.0 * r;
@@ -370,7 +370,7 @@ fn a_sphere_dropped_on_a_plane_rebounds_with_the_input_restitution() {
         let x = Vec3::new(0.001, 0.002, r + 1.0e-4);
         w.add_particle(ball(x, Vec3::new(0.0, 0.0, -impact), Vec3::zeros(), r))
             .unwrap();
-        let mut g = GpuWorld::new(&gpu, &w).unwrap();
+        let mut g = GpuWorld::new(gpu, &w).unwrap();
         let mut touched = false;
         run_until(&mut g, 20, 100_000, |p, _| {
             let touching = p.position[0].z < r;
@@ -404,7 +404,7 @@ fn sphere_on_plane(gpu: &Gpu, friction: f64, rolling: f64, v: Vec3, w: Vec3) -> 
 fn a_sliding_sphere_reaches_pure_rolling_at_five_sevenths_of_its_launch_speed() {
     let Some(gpu) = common::gpu() else { return };
     let (mu, g, v0, r) = (0.3, 9.81, 1.0, 0.005);
-    let mut world = sphere_on_plane(&gpu, mu, 0.0, Vec3::new(v0, 0.0, 0.0), Vec3::zeros());
+    let mut world = sphere_on_plane(gpu, mu, 0.0, Vec3::new(v0, 0.0, 0.0), Vec3::zeros());
     let slip = |p: &repose_engine_gpu::GpuParticles| {
         (p.velocity[0] + p.angular_velocity[0].cross(&Vec3::new(0.0, 0.0, -r))).x
     };
@@ -454,7 +454,7 @@ fn cdt_rolling_friction_decelerates_at_five_sevenths_mu_r_g() {
     let Some(gpu) = common::gpu() else { return };
     let (mu_r, v0, r) = (0.1, 0.5, 0.005);
     let mut world = sphere_on_plane(
-        &gpu,
+        gpu,
         0.5,
         mu_r,
         Vec3::new(v0, 0.0, 0.0),
@@ -489,7 +489,7 @@ fn a_colliding_cloud_conserves_momentum_to_f32_rounding() {
     let momentum = |v: &[Vec3]| v.iter().fold(Vec3::zeros(), |s, v| s + v);
     let start = momentum(&w.particles().velocity);
     let scale: f64 = w.particles().velocity.iter().map(|v| v.norm()).sum();
-    let mut g = GpuWorld::new(&gpu, &w).unwrap();
+    let mut g = GpuWorld::new(gpu, &w).unwrap();
     g.run(2000).unwrap();
     let p = g.particles().unwrap();
     assert!(p.removed.iter().all(|r| !r));
@@ -539,7 +539,7 @@ fn a_grain_on_a_finely_meshed_plate_feels_what_it_feels_on_two_triangles() {
                 r,
             ))
             .unwrap();
-            let mut g = GpuWorld::new(&gpu, &w).unwrap();
+            let mut g = GpuWorld::new(gpu, &w).unwrap();
             g.run(3).unwrap();
             let p = g.particles().unwrap();
             let start = w.particles();

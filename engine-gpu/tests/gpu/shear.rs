@@ -73,7 +73,7 @@ fn a_still_plate_listed_as_movable_records_the_weight_on_it() {
     );
     add_ball(&mut w, Vec3::new(0.001, -0.002, resting_height()));
     let capacity = Capacity::of(&w);
-    match GpuWorld::with_movers(&gpu, &w, capacity, &[0, 2]) {
+    match GpuWorld::with_movers(gpu, &w, capacity, &[0, 2]) {
         Err(GpuError::Invalid(message)) => assert!(message.contains("geometry 2"), "{message}"),
         other => panic!("an index past the geometries: {other:?}"),
     }
@@ -88,11 +88,11 @@ fn a_still_plate_listed_as_movable_records_the_weight_on_it() {
     }
     let all: Vec<usize> = (0..crowded.geometries().len()).collect();
     assert!(matches!(
-        GpuWorld::with_movers(&gpu, &crowded, Capacity::of(&crowded), &all),
+        GpuWorld::with_movers(gpu, &crowded, Capacity::of(&crowded), &all),
         Err(GpuError::Capacity(_))
     ));
 
-    let mut world = GpuWorld::with_movers(&gpu, &w, capacity, &[0, 0]).unwrap();
+    let mut world = GpuWorld::with_movers(gpu, &w, capacity, &[0, 0]).unwrap();
     let steps = 100;
     world.run(steps).unwrap();
     let weight = mass(R) * G;
@@ -127,7 +127,7 @@ fn a_plate_set_moving_during_the_run_drags_a_sphere_as_on_the_cpu_engine() {
     let Some(gpu) = common::gpu() else { return };
     let mut cpu = box_world(0.5, 0.3, Integrator::VelocityVerlet);
     add_ball(&mut cpu, Vec3::new(0.0, 0.0, resting_height()));
-    let mut world = GpuWorld::with_movers(&gpu, &cpu, Capacity::of(&cpu), &[0]).unwrap();
+    let mut world = GpuWorld::with_movers(gpu, &cpu, Capacity::of(&cpu), &[0]).unwrap();
     let (still, dragged) = (20, 20);
     for _ in 0..still {
         cpu.step();
@@ -232,7 +232,7 @@ fn a_slab_sum_over_a_small_pile_is_the_cpu_windows() {
     };
     let (settle, every, count) = (150, 15, 10);
     let sample = |world: &World| {
-        let mut gpu_world = GpuWorld::with_movers(&gpu, world, Capacity::of(world), &[0]).unwrap();
+        let mut gpu_world = GpuWorld::with_movers(gpu, world, Capacity::of(world), &[0]).unwrap();
         gpu_world.run(settle).unwrap();
         let sums: Vec<[f64; 3]> = (0..count)
             .map(|_| gpu_world.run_sampling_slab(every, &slab).unwrap())
@@ -312,7 +312,7 @@ fn a_slab_across_a_resting_column_sums_the_weight_above_times_its_thickness() {
         }
         z = next;
     }
-    let mut world = GpuWorld::new(&gpu, &w).unwrap();
+    let mut world = GpuWorld::new(gpu, &w).unwrap();
     let half = 1e-3;
     let slab = Slab {
         x: [-0.03, 0.03],

@@ -138,7 +138,7 @@ fn a_small_funnel_on_the_gpu_forms_a_heap_inside_the_cpu_seed_spread() {
             .collect()
     };
     let cpu = angles(Engine::Cpu);
-    let on_gpu = angles(Engine::Gpu(&gpu));
+    let on_gpu = angles(Engine::Gpu(gpu));
     let mean = |a: &[f64]| a.iter().sum::<f64>() / a.len() as f64;
     let (cpu_mean, gpu_mean) = (mean(&cpu), mean(&on_gpu));
     eprintln!("CPU {cpu:.2?} (mean {cpu_mean:.2}°), GPU {on_gpu:.2?} (mean {gpu_mean:.2}°)");
@@ -193,7 +193,7 @@ fn a_small_lifted_cylinder_on_the_gpu_slumps_inside_the_cpu_seed_spread() {
     let Some(gpu) = gpu() else { return };
     let cpu = lifted_angles(Engine::Cpu, 1..=3);
     let cpu_mean = cpu.iter().sum::<f64>() / 3.0;
-    let on_gpu = lifted_angles(Engine::Gpu(&gpu), 1..=1)[0];
+    let on_gpu = lifted_angles(Engine::Gpu(gpu), 1..=1)[0];
     eprintln!("lifted cylinder: CPU {cpu:.2?} (mean {cpu_mean:.2}°), GPU {on_gpu:.2}°");
     assert!(
         (on_gpu - cpu_mean).abs() < 3.5 * LIFTED_SEED_STD_DEG,
@@ -210,7 +210,7 @@ fn a_small_lifted_cylinder_on_the_gpu_slumps_inside_the_cpu_seed_spread() {
 fn the_small_lifted_cylinder_agrees_on_both_backends_over_twelve_seeds() {
     let Some(gpu) = gpu() else { return };
     let cpu = lifted_angles(Engine::Cpu, 1..=12);
-    let on_gpu = lifted_angles(Engine::Gpu(&gpu), 1..=12);
+    let on_gpu = lifted_angles(Engine::Gpu(gpu), 1..=12);
     let stats = |a: &[f64]| {
         let mean = a.iter().sum::<f64>() / a.len() as f64;
         let var = a.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (a.len() - 1) as f64;
@@ -234,7 +234,7 @@ fn the_small_lifted_cylinder_agrees_on_both_backends_over_twelve_seeds() {
 fn a_gpu_funnel_run_twice_is_bit_identical() {
     let Some(gpu) = gpu() else { return };
     let spec = small();
-    let (a, b) = (run(Engine::Gpu(&gpu), &spec), run(Engine::Gpu(&gpu), &spec));
+    let (a, b) = (run(Engine::Gpu(gpu), &spec), run(Engine::Gpu(gpu), &spec));
     let comparable = |r: &AorResult| {
         let mut v = serde_json::to_value(r).unwrap();
         v.as_object_mut().unwrap().remove("wall_time_s");
@@ -261,7 +261,7 @@ fn the_gpu_backend_refuses_checkpoints_by_name() {
     let Some(gpu) = gpu() else { return };
     let mut keep = |_: &[u8]| {};
     let message = run_aor_on(
-        Engine::Gpu(&gpu),
+        Engine::Gpu(gpu),
         &small(),
         &mut |_| Control::Continue,
         Checkpoints {
@@ -310,7 +310,7 @@ fn the_fast_funnel_agrees_on_both_backends_over_five_seeds() {
         (angles, wall)
     };
     let (cpu, cpu_wall) = angles(Engine::Cpu);
-    let (on_gpu, gpu_wall) = angles(Engine::Gpu(&gpu));
+    let (on_gpu, gpu_wall) = angles(Engine::Gpu(gpu));
     let mean = |a: &[f64]| a.iter().sum::<f64>() / a.len() as f64;
     let range = |a: &[f64]| {
         (

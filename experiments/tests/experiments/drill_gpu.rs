@@ -77,9 +77,9 @@ fn a_small_drill_on_the_gpu_opens_a_hole_inside_the_cpu_seed_spread() {
     let cpu: Vec<DrillResult> = (1..=3)
         .map(|seed| drill(Engine::Cpu, &spec, seed))
         .collect();
-    let on_gpu = drill(Engine::Gpu(&gpu), &spec, 1);
+    let on_gpu = drill(Engine::Gpu(gpu), &spec, 1);
     assert_each_names_its_engine(
-        &gpu,
+        gpu,
         (&on_gpu.bed.key, on_gpu.engine_version.as_deref()),
         (&cpu[0].bed.key, cpu[0].engine_version.as_deref()),
     );
@@ -123,7 +123,7 @@ fn the_fast_drill_agrees_on_both_backends_over_three_seeds() {
     let runs = |engine: Engine<'_>| -> Vec<DrillResult> {
         (1..=3).map(|seed| drill(engine, &spec, seed)).collect()
     };
-    let (cpu, on_gpu) = (runs(Engine::Cpu), runs(Engine::Gpu(&gpu)));
+    let (cpu, on_gpu) = (runs(Engine::Cpu), runs(Engine::Gpu(gpu)));
     let mean = |rs: &[DrillResult], f: fn(&DrillResult) -> f64| {
         rs.iter().map(f).sum::<f64>() / rs.len() as f64
     };
@@ -191,7 +191,7 @@ fn one_bed_drilled_on_both_engines_over_twelve_seeds() {
             assert_eq!(r.status, DrillStatus::Ok, "{:?}", r.message);
             figures(&r)
         };
-        let (cpu, on_gpu) = (on(Engine::Cpu), on(Engine::Gpu(&gpu)));
+        let (cpu, on_gpu) = (on(Engine::Cpu), on(Engine::Gpu(gpu)));
         eprintln!("seed {seed}: CPU {cpu:?}, GPU {on_gpu:?}");
         differences.push(std::array::from_fn::<f64, 4, _>(|k| on_gpu[k] - cpu[k]));
     }

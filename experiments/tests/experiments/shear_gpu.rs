@@ -85,7 +85,7 @@ fn one_sample_sheared_on_both_engines_gives_the_same_stages() {
     spec.seed = 1;
     let bed = build_sample(&spec, &mut |_| Control::Continue).unwrap();
     let cpu = stages_on(Engine::Cpu, &spec, &bed);
-    let on_gpu = stages_on(Engine::Gpu(&gpu), &spec, &bed);
+    let on_gpu = stages_on(Engine::Gpu(gpu), &spec, &bed);
     assert_eq!(on_gpu.status, ShearStatus::Ok, "{:?}", on_gpu.message);
     let version = on_gpu.engine_version.as_deref().unwrap();
     assert!(
@@ -95,7 +95,7 @@ fn one_sample_sheared_on_both_engines_gives_the_same_stages() {
     assert_eq!(cpu.engine_version.as_deref(), Some(repose_engine::VERSION));
     let gpu_key = ShearOn {
         spec: &spec,
-        engine: Engine::Gpu(&gpu),
+        engine: Engine::Gpu(gpu),
     }
     .bed_key();
     assert_eq!(gpu_key, format!("{}-gpu", ShearOn::cpu(&spec).bed_key()));
@@ -165,7 +165,7 @@ fn samples_settled_on_the_gpu_give_the_cpus_strength_over_nine_seeds() {
         spec.seed = seed;
         let on = ShearOn {
             spec: &spec,
-            engine: Engine::Gpu(&gpu),
+            engine: Engine::Gpu(gpu),
         };
         let bed = on.build_bed(&mut |_| Control::Continue).unwrap();
         assert!(bed.settled);
