@@ -585,7 +585,7 @@ impl GpuWorld {
         let removed = self.counters()?.removed;
         let mut slots = Vec::with_capacity(records.len());
         if removed > self.refilled {
-            let cell: Vec<[i32; 4]> = self.read(&self.buffers.cell)?;
+            let cell: Vec<[i32; 4]> = self.read_prefix(&self.buffers.cell, self.n as u64 * 16)?;
             slots.extend((0..self.n).filter(|&k| cell[k][3] < 0).take(records.len()));
         }
         let reused = slots.len();
@@ -990,10 +990,24 @@ impl GpuWorld {
 
     /// The first `size` bytes of `buffer`.
     fn read_prefix<T: Pod>(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<T>, GpuError> {
+        let [bytes] = self.read_prefixes([(buffer, size)])?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    }
+
+    /// The first `size` bytes of each buffer, copied in one submission and read after one
+    /// wait for the queue (each wait idles the GPU until the host submits again).
+    fn read_prefixes<const K: usize>(
+        &self,
+        parts: [(&wgpu::Buffer, u64); K],
+    ) -> Result<[Vec<u8>; K], GpuError> {
         let started = Instant::now();
+        let total: u64 = parts.iter().map(|&(_, size)| size).sum();
+        if total == 0 {
+            return Ok(std::array::from_fn(|_| Vec::new()));
+        }
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read back"),
-            size,
+            size: total,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -1002,7 +1016,13 @@ impl GpuWorld {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("read"),
             });
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        let mut at = 0;
+        for &(buffer, size) in &parts {
+            if size > 0 {
+                encoder.copy_buffer_to_buffer(buffer, 0, &staging, at, size);
+            }
+            at += size;
+        }
         self.queue.submit([encoder.finish()]);
         let slice = staging.slice(..);
         let (sender, receiver) = std::sync::mpsc::channel();
@@ -1014,12 +1034,31 @@ impl GpuWorld {
             .recv()
             .map_err(|e| GpuError::Lost(e.to_string()))?
             .map_err(|e| GpuError::Lost(e.to_string()))?;
-        let data = bytemuck::cast_slice::<u8, T>(&slice.get_mapped_range()).to_vec();
+        let out = {
+            let mapped = slice.get_mapped_range();
+            let mut at = 0;
+            parts.map(|(_, size)| {
+                let bytes = mapped[at as usize..(at + size) as usize].to_vec();
+                at += size;
+                bytes
+            })
+        };
         staging.unmap();
         if let Some(profiler) = &self.profiler {
             lock(profiler).read_back(started.elapsed());
         }
-        Ok(data)
+        Ok(out)
+    }
+
+    /// The first [`GpuWorld::len`] slots' records of the particle buffers `buffers` (16 bytes
+    /// a slot), read back together.
+    fn read_slots<const K: usize>(
+        &self,
+        buffers: [&wgpu::Buffer; K],
+    ) -> Result<[Vec<[f32; 4]>; K], GpuError> {
+        let size = self.n as u64 * 16;
+        let bytes = self.read_prefixes(buffers.map(|b| (b, size)))?;
+        Ok(bytes.map(|b| bytemuck::pod_collect_to_vec(&b)))
     }
 
     fn control(&self) -> Result<Vec<u32>, GpuError> {
@@ -1121,12 +1160,11 @@ impl GpuWorld {
     /// The particles' centres now and whether each slot is empty (its grain removed), by slot:
     /// two read-backs where [`GpuWorld::particles`] makes five (e.g. a host-side room test).
     pub fn positions(&self) -> Result<(Vec<Vec3>, Vec<bool>), GpuError> {
-        let n = self.n;
-        let cell = &self.read::<[i32; 4]>(&self.buffers.cell)?[..n];
-        let off = &self.read::<[f32; 4]>(&self.buffers.off)?[..n];
+        let [cell, off] = self.read_slots([&self.buffers.cell, &self.buffers.off])?;
+        let cell: Vec<[i32; 4]> = cell.into_iter().map(bytemuck::cast).collect();
         Ok((
             cell.iter()
-                .zip(off)
+                .zip(&off)
                 .map(|(c, o)| {
                     self.grid
                         .to_position([c[0], c[1], c[2]], [o[0], o[1], o[2]])
@@ -1138,17 +1176,15 @@ impl GpuWorld {
 
     /// The particles now, by slot (the first [`GpuWorld::len`] slots).
     pub fn particles(&self) -> Result<GpuParticles, GpuError> {
-        let n = self.n;
-        let cell = &self.read::<[i32; 4]>(&self.buffers.cell)?[..n];
-        let off = &self.read::<[f32; 4]>(&self.buffers.off)?[..n];
-        let vel = &self.read::<[f32; 4]>(&self.buffers.vel)?[..n];
-        let omg = &self.read::<[f32; 4]>(&self.buffers.omg)?[..n];
-        let trq = &self.read::<[f32; 4]>(&self.buffers.trq)?[..n];
+        let b = &self.buffers;
+        let [cell, off, vel, omg, trq] =
+            self.read_slots([&b.cell, &b.off, &b.vel, &b.omg, &b.trq])?;
+        let cell: Vec<[i32; 4]> = cell.into_iter().map(bytemuck::cast).collect();
         let v3 = |v: &[f32; 4]| Vec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
         Ok(GpuParticles {
             position: cell
                 .iter()
-                .zip(off)
+                .zip(&off)
                 .map(|(c, o)| {
                     self.grid
                         .to_position([c[0], c[1], c[2]], [o[0], o[1], o[2]])
