@@ -19,8 +19,10 @@
 # ends cleanly and reports how far it got). BENCH: the engine benchmark (default 1). SEEDS:
 # `fast` funnel seeds on the GPU (default 12); CPU_SEEDS: the same seeds on the CPU engine, all
 # at once, one thread each (default 1). DRILL, SHEAR: the `fast` drill and shear test on the GPU
-# (default 1). BUDGET_S: the seconds the whole script may take. Every figure is printed; the
-# runs' result.json files are under $WORK (default /tmp/repose-gpu).
+# (default 1). BASE: an older release build of repose; each benchmark size then also runs on
+# it, GPU only, right after the current build's row (a same-machine comparison of two builds).
+# BUDGET_S: the seconds the whole script may take. Every figure is printed; the runs'
+# result.json files are under $WORK (default /tmp/repose-gpu).
 set -u
 REPOSE=${REPOSE:-repose}
 SEEDS=${SEEDS:-12}
@@ -34,6 +36,7 @@ PROFILE_S=${PROFILE_S:-30}
 PROFILE_PRESETS=${PROFILE_PRESETS:-fast paper-scale fine}
 PAPER=${PAPER:-1}
 FINE_S=${FINE_S:-240}
+BASE=${BASE:-}
 BUDGET_S=${BUDGET_S:-560}
 WORK=${WORK:-/tmp/repose-gpu}
 T0=$(date +%s)
@@ -94,19 +97,23 @@ else
     stamp "skipped: the fine funnel ($cap s left)"
 fi
 if [ "$BENCH" = 1 ]; then
-    B="timeout -s KILL"
-    if fits 40 "the 20 k benchmark"; then
-        stamp "engine benchmark, 20 k"
-        $B 60 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 20000 --steps 5000 --cpu-steps 200
-    fi
-    if fits 60 "the 200 k benchmark"; then
-        stamp "engine benchmark, 200 k"
-        $B 90 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 200000 --steps 2000 --cpu-steps 40
-    fi
-    if fits 100 "the 2 M benchmark"; then
-        stamp "engine benchmark, 2 M"
-        $B 150 "$REPOSE" bench engine --backend gpu --threads 1,$(nproc) --particles 2000000 --steps 500 --cpu-steps 10
-    fi
+    # bench N STEPS CPU_STEPS LIMIT: one size on this build (GPU and CPU), then on BASE (GPU).
+    bench() {
+        fits $(( BASE_S + $4 * 2 / 3 )) "the $1-grain benchmark" || return
+        stamp "engine benchmark, $1 grains"
+        timeout -s KILL "$4" "$REPOSE" bench engine --backend gpu --threads 1,"$(nproc)" \
+            --particles "$1" --steps "$2" --cpu-steps "$3"
+        if [ -n "$BASE" ]; then
+            stamp "engine benchmark, $1 grains, BASE build, GPU only"
+            timeout -s KILL "$4" "$BASE" bench engine --backend gpu --particles "$1" --steps "$2" |
+                grep -E "particles|gpu"
+        fi
+    }
+    BASE_S=0
+    [ -n "$BASE" ] && BASE_S=30
+    bench 20000 5000 200 60
+    bench 200000 2000 40 90
+    bench 2000000 500 10 150
 fi
 if [ "$SEEDS" -gt 0 ] && fits $(( 5 * SEEDS + 20 )) "the fast funnel's seeds"; then
     stamp "fast funnel on the GPU, seeds 1-$SEEDS, one at a time"
