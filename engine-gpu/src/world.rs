@@ -121,8 +121,6 @@ pub struct GpuWorld {
     n: usize,
     /// Each material's particle density, kg/m³.
     densities: Vec<f64>,
-    /// Neighbour grid cells.
-    cells: usize,
     radius: Vec<f64>,
     pipelines: Pipelines,
     buffers: Buffers,
@@ -159,7 +157,7 @@ pub struct GpuWorld {
 impl Drop for GpuWorld {
     fn drop(&mut self) {
         if let Some(profile) = self.profile() {
-            tracing::info!(target: "repose_engine_gpu::profile", "{} grain slots, {} cells\n{profile}", self.n, self.cells);
+            tracing::info!(target: "repose_engine_gpu::profile", "{} grain slots, {} cells\n{profile}", self.n, self.grid.cells());
         }
     }
 }
@@ -462,7 +460,6 @@ impl GpuWorld {
                         .density
                 })
                 .collect(),
-            cells: scene.grid.cells(),
             radius: scene.radius,
             pipelines,
             buffers: Buffers {
@@ -1158,7 +1155,8 @@ impl GpuWorld {
     }
 
     /// The particles' centres now and whether each slot is empty (its grain removed), by slot:
-    /// two read-backs where [`GpuWorld::particles`] makes five (e.g. a host-side room test).
+    /// one read-back of two buffers where [`GpuWorld::particles`] reads five (e.g. a host-side
+    /// room test).
     pub fn positions(&self) -> Result<(Vec<Vec3>, Vec<bool>), GpuError> {
         let [cell, off] = self.read_slots([&self.buffers.cell, &self.buffers.off])?;
         let cell: Vec<[i32; 4]> = cell.into_iter().map(bytemuck::cast).collect();

@@ -743,7 +743,7 @@ pub fn run_aor_on(
         if ended_by.is_none() && t >= state.deadline {
             ended_by = Some(EndedBy::TimeCap);
         }
-        if ended_by.is_none() && backend.steps() % backend.steps_between_reports() == 0 {
+        if ended_by.is_none() && backend.steps() % report_every == 0 {
             if let Some(cap) = spec.wall_time_cap {
                 if wall_time() > cap {
                     ended_by = Some(EndedBy::WallTimeCap);
