@@ -25,6 +25,10 @@ const SHADER: &str = include_str!("shaders/dem.wgsl");
 /// Steps encoded into one command buffer.
 const STEPS_PER_SUBMIT: u64 = 25;
 
+/// Steps of the first submission after a read-back, which found the queue empty: the GPU
+/// waits while the host encodes them (about 30 µs a step on the H200's host), so they are few.
+const STEPS_AFTER_READ_BACK: u64 = 4;
+
 /// Load records (one per recorded force evaluation, each a force and a torque per moving
 /// geometry) the device holds before the host reads them back.
 const SERIES_RECORDS: usize = 16_384;
@@ -152,6 +156,21 @@ pub struct GpuWorld {
     adapter: String,
     /// Kernel timestamps, when the GPU was opened to profile ([`Gpu::profiling`]).
     profiler: Option<Mutex<Profiler>>,
+    /// What the last read-back of the particles saw, for later questions about the same step.
+    seen: Mutex<Option<Seen>>,
+    /// A read-back waited for the queue since the last submission of steps.
+    drained: std::sync::atomic::AtomicBool,
+}
+
+/// The control words and the empty slots as a read-back of the particles found them after
+/// `steps` steps: the counters and an insertion's free slots at that step need no read-back
+/// of their own (each one idles the GPU until the host submits again). Only steps change
+/// them, and [`GpuWorld::insert`] keeps `empty` up to date.
+struct Seen {
+    steps: u64,
+    control: Vec<u32>,
+    /// Slots of removed grains, ascending.
+    empty: Vec<usize>,
 }
 
 impl Drop for GpuWorld {
@@ -174,9 +193,15 @@ impl std::fmt::Debug for GpuWorld {
     }
 }
 
-/// The profiler (a panic while it was held left nothing half-written that matters).
-fn lock(profiler: &Mutex<Profiler>) -> std::sync::MutexGuard<'_, Profiler> {
-    profiler.lock().unwrap_or_else(|e| e.into_inner())
+/// The profiler or the last read-back's notes (a panic while one was held left nothing
+/// half-written that matters).
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The empty slots (a removed grain's voxel record has a negative fourth word), ascending.
+fn empty_of(cell: &[[i32; 4]]) -> Vec<usize> {
+    (0..cell.len()).filter(|&k| cell[k][3] < 0).collect()
 }
 
 /// Workgroups for `count` threads (at least one: an empty world's kernels run as no-ops).
@@ -492,6 +517,8 @@ impl GpuWorld {
             refilled: 0,
             steps: 0,
             profiler,
+            seen: Mutex::new(None),
+            drained: std::sync::atomic::AtomicBool::new(true),
             forces_current: false,
             adapter: gpu.name().to_owned(),
         };
@@ -538,7 +565,8 @@ impl GpuWorld {
     /// inertia are the CPU engine's (a solid sphere of the material's density); the grains start
     /// without contact history and the next step rebuilds the neighbour lists (with velocity
     /// Verlet it first evaluates the forces, as the CPU engine does after an insertion). Reads
-    /// back the control words, and the particle records when grains were removed.
+    /// back the control words, and the particle records when grains were removed, unless
+    /// [`GpuWorld::positions`] or [`GpuWorld::particles`] read them at this step.
     ///
     /// Errors: a spec with an unknown material, a radius not in (0, the capacity's largest], a
     /// centre outside the domain ([`GpuError::Particle`]); more grains than free slots
@@ -582,8 +610,7 @@ impl GpuWorld {
         let removed = self.counters()?.removed;
         let mut slots = Vec::with_capacity(records.len());
         if removed > self.refilled {
-            let cell: Vec<[i32; 4]> = self.read_prefix(&self.buffers.cell, self.n as u64 * 16)?;
-            slots.extend((0..self.n).filter(|&k| cell[k][3] < 0).take(records.len()));
+            slots.extend(self.empty_slots()?.into_iter().take(records.len()));
         }
         let reused = slots.len();
         slots.extend(self.n..(self.n + records.len() - reused).min(self.capacity));
@@ -619,6 +646,9 @@ impl GpuWorld {
             start = end;
         }
         self.refilled += reused as u64;
+        if let Some(seen) = lock(&self.seen).as_mut().filter(|s| s.steps == self.steps) {
+            seen.empty.drain(..reused);
+        }
         self.n = self.n.max(slots.iter().max().map_or(0, |&k| k + 1));
         self.radius.resize(self.n, 0.0);
         for (&k, spec) in slots.iter().zip(specs) {
@@ -760,7 +790,14 @@ impl GpuWorld {
         let mut left = steps;
         while left > 0 {
             let encoding = Instant::now();
-            let chunk = left.min(STEPS_PER_SUBMIT);
+            let drained = self
+                .drained
+                .swap(false, std::sync::atomic::Ordering::Relaxed);
+            let chunk = left.min(if drained {
+                STEPS_AFTER_READ_BACK
+            } else {
+                STEPS_PER_SUBMIT
+            });
             // The CPU engine records a step's loads when its count after the step is a
             // multiple of the interval (and never the Verlet start-up's).
             let records: Vec<bool> = (1..=chunk)
@@ -977,8 +1014,10 @@ impl GpuWorld {
     pub fn finish(&self) -> Result<(), GpuError> {
         self.device
             .poll(wgpu::PollType::Wait)
-            .map(|_| ())
-            .map_err(|e| GpuError::Lost(e.to_string()))
+            .map_err(|e| GpuError::Lost(e.to_string()))?;
+        self.drained
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+        Ok(())
     }
 
     fn read<T: Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
@@ -987,20 +1026,17 @@ impl GpuWorld {
 
     /// The first `size` bytes of `buffer`.
     fn read_prefix<T: Pod>(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<T>, GpuError> {
-        let [bytes] = self.read_prefixes([(buffer, size)])?;
-        Ok(bytemuck::pod_collect_to_vec(&bytes))
+        let bytes = self.read_prefixes(&[(buffer, size)])?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes[0]))
     }
 
     /// The first `size` bytes of each buffer, copied in one submission and read after one
     /// wait for the queue (each wait idles the GPU until the host submits again).
-    fn read_prefixes<const K: usize>(
-        &self,
-        parts: [(&wgpu::Buffer, u64); K],
-    ) -> Result<[Vec<u8>; K], GpuError> {
+    fn read_prefixes(&self, parts: &[(&wgpu::Buffer, u64)]) -> Result<Vec<Vec<u8>>, GpuError> {
         let started = Instant::now();
         let total: u64 = parts.iter().map(|&(_, size)| size).sum();
         if total == 0 {
-            return Ok(std::array::from_fn(|_| Vec::new()));
+            return Ok(vec![Vec::new(); parts.len()]);
         }
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read back"),
@@ -1014,7 +1050,7 @@ impl GpuWorld {
                 label: Some("read"),
             });
         let mut at = 0;
-        for &(buffer, size) in &parts {
+        for &(buffer, size) in parts {
             if size > 0 {
                 encoder.copy_buffer_to_buffer(buffer, 0, &staging, at, size);
             }
@@ -1034,11 +1070,14 @@ impl GpuWorld {
         let out = {
             let mapped = slice.get_mapped_range();
             let mut at = 0;
-            parts.map(|(_, size)| {
-                let bytes = mapped[at as usize..(at + size) as usize].to_vec();
-                at += size;
-                bytes
-            })
+            parts
+                .iter()
+                .map(|&(_, size)| {
+                    let bytes = mapped[at as usize..(at + size) as usize].to_vec();
+                    at += size;
+                    bytes
+                })
+                .collect()
         };
         staging.unmap();
         if let Some(profiler) = &self.profiler {
@@ -1048,18 +1087,61 @@ impl GpuWorld {
     }
 
     /// The first [`GpuWorld::len`] slots' records of the particle buffers `buffers` (16 bytes
-    /// a slot), read back together.
+    /// a slot) and the control words, read back together.
     fn read_slots<const K: usize>(
         &self,
         buffers: [&wgpu::Buffer; K],
-    ) -> Result<[Vec<[f32; 4]>; K], GpuError> {
+    ) -> Result<([Vec<[f32; 4]>; K], Vec<u32>), GpuError> {
         let size = self.n as u64 * 16;
-        let bytes = self.read_prefixes(buffers.map(|b| (b, size)))?;
-        Ok(bytes.map(|b| bytemuck::pod_collect_to_vec(&b)))
+        let ctl = &self.buffers.ctl;
+        let parts: Vec<(&wgpu::Buffer, u64)> = (buffers.iter().map(|&b| (b, size)))
+            .chain([(ctl, ctl.size())])
+            .collect();
+        let mut bytes = self.read_prefixes(&parts)?;
+        let control = bytemuck::pod_collect_to_vec(&bytes.pop().expect("the control words"));
+        let slots: Vec<Vec<[f32; 4]>> = bytes
+            .iter()
+            .map(|b| bytemuck::pod_collect_to_vec(b))
+            .collect();
+        let slots = slots.try_into().expect("one vector a buffer");
+        Ok((slots, control))
     }
 
+    /// The control words after the present step: those a read-back of the particles saw at
+    /// this step, or read back now. An overflowed capacity is an error.
     fn control(&self) -> Result<Vec<u32>, GpuError> {
-        let words: Vec<u32> = self.read(&self.buffers.ctl)?;
+        let seen = lock(&self.seen)
+            .as_ref()
+            .filter(|seen| seen.steps == self.steps)
+            .map(|seen| seen.control.clone());
+        let words = match seen {
+            Some(words) => words,
+            None => self.read(&self.buffers.ctl)?,
+        };
+        Self::check_overflows(&words)?;
+        Ok(words)
+    }
+
+    /// The empty slots (removed grains') after the present step, ascending: as a read-back of
+    /// the particles saw them at this step, or read back now.
+    fn empty_slots(&self) -> Result<Vec<usize>, GpuError> {
+        if let Some(seen) = lock(&self.seen).as_ref().filter(|s| s.steps == self.steps) {
+            return Ok(seen.empty.clone());
+        }
+        let cell: Vec<[i32; 4]> = self.read_prefix(&self.buffers.cell, self.n as u64 * 16)?;
+        Ok(empty_of(&cell))
+    }
+
+    /// Notes what a read-back of the particles (`cell` and the control words) saw now.
+    fn note_seen(&self, cell: &[[i32; 4]], control: Vec<u32>) {
+        *lock(&self.seen) = Some(Seen {
+            steps: self.steps,
+            control,
+            empty: empty_of(cell),
+        });
+    }
+
+    fn check_overflows(words: &[u32]) -> Result<(), GpuError> {
         let overflow = |word: usize, what: &str| -> Result<(), GpuError> {
             if words[word] > 0 {
                 return Err(GpuError::Overflow(format!(
@@ -1080,12 +1162,12 @@ impl GpuWorld {
         overflow(
             ctl::WALL_OVERFLOW,
             "triangle contact candidates (16 per particle before merging)",
-        )?;
-        Ok(words)
+        )
     }
 
     /// The run's counters; an overflow of a fixed capacity is an error (the results are not
-    /// valid).
+    /// valid). No read-back after [`GpuWorld::positions`] or [`GpuWorld::particles`] at the
+    /// same step (they read the counters too).
     pub fn counters(&self) -> Result<Counters, GpuError> {
         let words = self.control()?;
         Ok(Counters {
@@ -1155,11 +1237,13 @@ impl GpuWorld {
     }
 
     /// The particles' centres now and whether each slot is empty (its grain removed), by slot:
-    /// one read-back of two buffers where [`GpuWorld::particles`] reads five (e.g. a host-side
-    /// room test).
+    /// one read-back of two buffers (and the counters) where [`GpuWorld::particles`] reads five
+    /// (e.g. a host-side room test). An [`GpuWorld::insert`] at the same step then finds the
+    /// removed grains' slots without a read-back.
     pub fn positions(&self) -> Result<(Vec<Vec3>, Vec<bool>), GpuError> {
-        let [cell, off] = self.read_slots([&self.buffers.cell, &self.buffers.off])?;
+        let ([cell, off], control) = self.read_slots([&self.buffers.cell, &self.buffers.off])?;
         let cell: Vec<[i32; 4]> = cell.into_iter().map(bytemuck::cast).collect();
+        self.note_seen(&cell, control);
         Ok((
             cell.iter()
                 .zip(&off)
@@ -1175,9 +1259,10 @@ impl GpuWorld {
     /// The particles now, by slot (the first [`GpuWorld::len`] slots).
     pub fn particles(&self) -> Result<GpuParticles, GpuError> {
         let b = &self.buffers;
-        let [cell, off, vel, omg, trq] =
+        let ([cell, off, vel, omg, trq], control) =
             self.read_slots([&b.cell, &b.off, &b.vel, &b.omg, &b.trq])?;
         let cell: Vec<[i32; 4]> = cell.into_iter().map(bytemuck::cast).collect();
+        self.note_seen(&cell, control);
         let v3 = |v: &[f32; 4]| Vec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
         Ok(GpuParticles {
             position: cell

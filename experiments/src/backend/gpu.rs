@@ -329,9 +329,10 @@ impl GpuBackend {
     fn snapshot(&mut self) -> Result<&Snapshot, BackendError> {
         let steps = self.gpu_world.steps();
         if self.cache.as_ref().is_none_or(|(at, _)| *at != steps) {
-            // Overflowed capacities make the state invalid: an error, not a result.
-            self.gpu_world.counters()?;
             let p = self.gpu_world.particles()?;
+            // Overflowed capacities make the state invalid: an error, not a result (the
+            // counters of the step just read back: no read-back of their own).
+            self.gpu_world.counters()?;
             let mut s = Snapshot::default();
             for k in (0..p.position.len()).filter(|&k| !p.removed[k]) {
                 s.position.push(p.position[k]);
