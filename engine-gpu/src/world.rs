@@ -199,6 +199,9 @@ fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     mutex.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Per buffer read, its slots' 16-byte records; then the control words.
+type SlotsRead<const K: usize> = ([Vec<[f32; 4]>; K], Vec<u32>);
+
 /// The empty slots (a removed grain's voxel record has a negative fourth word), ascending.
 fn empty_of(cell: &[[i32; 4]]) -> Vec<usize> {
     (0..cell.len()).filter(|&k| cell[k][3] < 0).collect()
@@ -1091,7 +1094,7 @@ impl GpuWorld {
     fn read_slots<const K: usize>(
         &self,
         buffers: [&wgpu::Buffer; K],
-    ) -> Result<([Vec<[f32; 4]>; K], Vec<u32>), GpuError> {
+    ) -> Result<SlotsRead<K>, GpuError> {
         let size = self.n as u64 * 16;
         let ctl = &self.buffers.ctl;
         let parts: Vec<(&wgpu::Buffer, u64)> = (buffers.iter().map(|&b| (b, size)))
