@@ -19,8 +19,9 @@
 # ends cleanly and reports how far it got). BENCH: the engine benchmark (default 1). SEEDS:
 # `fast` funnel seeds on the GPU (default 12); CPU_SEEDS: the same seeds on the CPU engine, all
 # at once, one thread each (default 1). DRILL, SHEAR: the `fast` drill and shear test on the GPU
-# (default 1). BASE: an older release build of repose; each benchmark size then also runs on
-# it, GPU only, right after the current build's row (a same-machine comparison of two builds).
+# (default 1). BASE: an older release build of repose; the paper-scale funnel and each
+# benchmark size then also run on it, GPU only, right after the current build (a same-machine
+# comparison of two builds).
 # BUDGET_S: the seconds the whole script may take. Every figure is printed; the runs'
 # result.json files are under $WORK (default /tmp/repose-gpu).
 set -u
@@ -84,6 +85,11 @@ if [ "$PAPER" = 1 ] && fits 60 "the paper-scale funnel"; then
     stamp "paper-scale funnel on the GPU, alone"
     timeout -s KILL 150 "$REPOSE" aor --backend gpu --preset paper-scale --out "$WORK/gpu-paper-scale" --quiet >/dev/null 2>&1
     summary "$WORK/gpu-paper-scale/result.json"
+    if [ -n "$BASE" ] && fits 60 "the paper-scale funnel on BASE"; then
+        stamp "paper-scale funnel on the GPU, BASE build, alone"
+        timeout -s KILL 150 "$BASE" aor --backend gpu --preset paper-scale --out "$WORK/base-paper-scale" --quiet >/dev/null 2>&1
+        summary "$WORK/base-paper-scale/result.json"
+    fi
 fi
 cap=$(( BUDGET_S - $(elapsed) - 15 ))
 cap=$(( cap < FINE_S ? cap : FINE_S ))
