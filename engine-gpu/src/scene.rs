@@ -322,6 +322,23 @@ pub(crate) struct Scene {
     pub movers: Vec<Mover>,
 }
 
+impl Scene {
+    /// The shader's pipeline-overridable constants for this scene (1: may happen, 0: cannot):
+    /// JKR or linear cohesion in some material pair, EPSD rolling, moving geometries.
+    pub fn pipeline_constants(&self) -> [(&'static str, f64); 4] {
+        let flag = |b: bool| if b { 1.0 } else { 0.0 };
+        [
+            ("JKR", flag(self.pairs.iter().any(|p| p.c[0] > 0.0))),
+            (
+                "LINEAR_COHESION",
+                flag(self.pairs.iter().any(|p| p.b[2] > 0.0)),
+            ),
+            ("EPSD", flag(self.params.epsd())),
+            ("MOVERS", flag(!self.movers.is_empty())),
+        ]
+    }
+}
+
 /// The linear (SJKR) cohesion's energy density k, J/m³, for the shader (0: none).
 fn linear_cohesion(law: CohesionLaw) -> f32 {
     match law {

@@ -439,13 +439,17 @@ impl GpuWorld {
             bind_group_layouts: &[&main_layout, &params_layout, &frames_layout],
             push_constant_ranges: &[],
         });
+        let constants = scene.pipeline_constants();
         let pipeline = |entry: &str, layout: &wgpu::PipelineLayout| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
                 layout: Some(layout),
                 module: &module,
                 entry_point: Some(entry),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &constants,
+                    ..Default::default()
+                },
                 cache: None,
             })
         };

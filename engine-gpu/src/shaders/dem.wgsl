@@ -20,6 +20,15 @@ const WG: u32 = 128u;
 const DAMPING_FACTOR: f32 = 1.8257418583505538;
 const PI: f32 = 3.141592653589793;
 
+// What the world's scene holds, fixed when its pipelines are made: a law or a loop the scene
+// cannot use is left out of the compiled kernels (smaller kernels, fewer registers). Each only
+// gates the run-time test that decides the same thing (a pair's constants, the rolling model,
+// the moving geometries' count), so a kernel made with every one true gives the same forces.
+override JKR: bool = true;              // some material pair has JKR cohesion
+override LINEAR_COHESION: bool = true;  // some material pair has linear cohesion
+override EPSD: bool = true;             // the rolling model is EPSD
+override MOVERS: bool = true;           // some geometry moves (or is listed as movable)
+
 struct Params {
     n: u32,
     ncells: u32,
@@ -243,7 +252,7 @@ fn hertz_mindlin(c: PairC, r_star: f32, m_star: f32, overlap: f32, n: vec3<f32>,
 // spring per contact, its words after the tangential springs (`spr` slot CAP + k, `walls`
 // slot 2 WCAP + h).
 fn epsd() -> bool {
-    return P.misc2.y == 0.0;
+    return EPSD && P.misc2.y == 0.0;
 }
 
 // Words of a grain's triangle histories: normal and spring, and the rolling spring with EPSD.
@@ -354,7 +363,7 @@ fn pair_contact(a: u32, b: u32, spring_in: vec4<f32>, rolling_in: vec3<f32>) -> 
         // A JKR contact outlives zero overlap (necking) until its separation: only JKR's
         // attraction acts there, no Hertz load, so no friction (the CPU engine's kernel).
         // Most listed pairs are apart and were apart: only one that touched reads its constants.
-        if (spring_in.w == 0.0) {
+        if (!JKR || spring_in.w == 0.0) {
             return o;
         }
         let c = pair_constants(cell[a].w, cell[b].w);
@@ -389,13 +398,13 @@ fn pair_contact(a: u32, b: u32, spring_in: vec4<f32>, rolling_in: vec3<f32>) -> 
     let c = pair_constants(cell[a].w, cell[b].w);
     let h = hertz_mindlin(c, r_star, m_star, overlap, n, vrel, spring_in.xyz);
     var force = h.force;
-    if (c.b.z > 0.0) {
+    if (LINEAR_COHESION && c.b.z > 0.0) {
         // Linear cohesion, k times the area of the circle where the undeformed spheres cut;
         // friction and rolling keep the Hertz load (the CPU engine's `CohesionLaw`).
         let a2 = overlap * (2.0 * ra - overlap) * (2.0 * rb - overlap)
             * (2.0 * rsum - overlap) / (4.0 * dist2);
         force -= n * (c.b.z * PI * a2);
-    } else if (c.c.x > 0.0) {
+    } else if (JKR && c.c.x > 0.0) {
         force -= n * jkr_attraction(c, r_star, overlap);
     }
     let n_cross_f = cross(n, force);
@@ -879,7 +888,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         let t = tgrid[listed + e];
         offer(&cand, &nc, t, tris[t], ci, oi, vec3<f32>(0.0), fixed, ri);
     }
-    for (var m = 0u; m < P.movers.x; m++) {
+    for (var m = 0u; MOVERS && m < P.movers.x; m++) {
         let g = F.m[m];
         // The grain's centre from the body origin, world frame, then body frame.
         let from_origin = vec3<f32>(ci - g.cell.xyz) * P.csize.xyz + (oi - g.off.xyz);
@@ -941,7 +950,7 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     let wi = omg[i].xyz;
     // A recorded evaluation: the grain's shares of the moving geometries' loads, summed in its
     // own slots (only this thread writes them) and by `reduce_loads` after.
-    let recording = F.head.x >= 0;
+    let recording = MOVERS && F.head.x >= 0;
     if (recording) {
         for (var m = 0u; m < P.movers.x; m++) {
             wload[slot(i, 2u * m)] = vec4<f32>(0.0);
@@ -977,10 +986,10 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         let c = pair_constants(cell[i].w, tc.material);
         let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, spring);
         var force = h.force;
-        if (c.b.z > 0.0) {
+        if (LINEAR_COHESION && c.b.z > 0.0) {
             // Linear cohesion over the circle where the sphere cuts the wall's plane.
             force -= tc.normal * (c.b.z * PI * tc.overlap * (2.0 * ri - tc.overlap));
-        } else if (c.c.x > 0.0) {
+        } else if (JKR && c.c.x > 0.0) {
             // JKR against a wall: no necking (a wall contact ends at zero overlap, as on the
             // CPU).
             force -= tc.normal * jkr_attraction(c, ri, tc.overlap);

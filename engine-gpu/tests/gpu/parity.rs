@@ -581,3 +581,79 @@ fn a_grain_on_a_finely_meshed_plate_feels_what_it_feels_on_two_triangles() {
         );
     }
 }
+
+/// The kernels are made for the scene's laws: a world whose pairs have no cohesion leaves JKR's
+/// and linear cohesion's code out of them (pipeline-overridable constants). That only removes
+/// code: a cloud falling onto a plate steps to the same bits as in a world whose material table
+/// also holds a sticky material (JKR against the grains, linear against itself) that no grain
+/// or wall is made of, whose kernels keep that code.
+#[test]
+fn a_law_no_pair_uses_is_left_out_of_the_kernels_and_changes_no_bit() {
+    let Some(gpu) = common::gpu() else { return };
+    let r = 1.0e-3;
+    let plain = table(0.5, 0.5, 0.1);
+    let entry = |a: &str, b: &str, cohesion: Cohesion| InteractionEntry {
+        a: a.into(),
+        b: b.into(),
+        coefficients: Interaction {
+            restitution: 0.5,
+            static_friction: 0.5,
+            rolling_friction: 0.1,
+            cohesion,
+        },
+    };
+    let sticky = MaterialSet {
+        damping_law: DampingLaw::default(),
+        materials: vec![
+            ball_material(),
+            wall_material(),
+            Material {
+                name: "sticky".into(),
+                ..ball_material()
+            },
+        ],
+        interactions: vec![
+            entry("ball", "ball", Cohesion::None),
+            entry("ball", "wall", Cohesion::None),
+            entry("wall", "wall", Cohesion::None),
+            entry("ball", "sticky", Cohesion::Jkr { surface_energy: 0.5 }),
+            entry("wall", "sticky", Cohesion::None),
+            entry(
+                "sticky",
+                "sticky",
+                Cohesion::Linear {
+                    energy_density: 1e4,
+                },
+            ),
+        ],
+    }
+    .build()
+    .unwrap();
+    assert_eq!(sticky.id("ball"), Some(BALL));
+    let dt = plain.rayleigh_time_step(BALL, r, 0.2);
+    let domain = Domain::closed(Vec3::repeat(-0.02), Vec3::repeat(0.02));
+    let state = |materials: MaterialTable| {
+        let mut w = world(materials, dt, Vec3::new(0.0, 0.0, -9.81), domain);
+        add_mesh(&mut w, plane(0.015, 4));
+        for x in 0..4 {
+            for y in 0..4 {
+                for z in 0..4 {
+                    let centre = Vec3::new(x as f64 - 1.5, y as f64 - 1.5, z as f64 + 0.6)
+                        * (2.05 * r)
+                        + Vec3::new(1e-4 * z as f64, 0.0, 0.0);
+                    w.add_particle(ball(centre, Vec3::zeros(), Vec3::zeros(), r))
+                        .unwrap();
+                }
+            }
+        }
+        let mut g = GpuWorld::new(gpu, &w).unwrap();
+        g.run(4000).unwrap();
+        let touching: u32 = g.particles().unwrap().contacts.iter().sum();
+        (g.state_bytes().unwrap(), touching)
+    };
+    let (without, touching) = state(plain);
+    let (with, _) = state(sticky);
+    println!("a cloud on a plate after 4000 steps: {touching} contacts");
+    assert!(touching > 0, "the grains never touched");
+    assert!(without == with, "the kernels without cohesion's code stepped other bits");
+}
