@@ -616,7 +616,13 @@ fn a_law_no_pair_uses_is_left_out_of_the_kernels_and_changes_no_bit() {
             entry("ball", "ball", Cohesion::None),
             entry("ball", "wall", Cohesion::None),
             entry("wall", "wall", Cohesion::None),
-            entry("ball", "sticky", Cohesion::Jkr { surface_energy: 0.5 }),
+            entry(
+                "ball",
+                "sticky",
+                Cohesion::Jkr {
+                    surface_energy: 0.5,
+                },
+            ),
             entry("wall", "sticky", Cohesion::None),
             entry(
                 "sticky",
@@ -655,5 +661,8 @@ fn a_law_no_pair_uses_is_left_out_of_the_kernels_and_changes_no_bit() {
     let (with, _) = state(sticky);
     println!("a cloud on a plate after 4000 steps: {touching} contacts");
     assert!(touching > 0, "the grains never touched");
-    assert!(without == with, "the kernels without cohesion's code stepped other bits");
+    assert!(
+        without == with,
+        "the kernels without cohesion's code stepped other bits"
+    );
 }
