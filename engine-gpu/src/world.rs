@@ -202,9 +202,14 @@ fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// Per buffer read, its slots' 16-byte records; then the control words.
 type SlotsRead<const K: usize> = ([Vec<[f32; 4]>; K], Vec<u32>);
 
-/// The empty slots (a removed grain's voxel record has a negative fourth word), ascending.
+/// Whether a slot is empty: a removed grain's voxel record has a negative fourth word.
+fn is_empty(cell: &[i32; 4]) -> bool {
+    cell[3] < 0
+}
+
+/// The empty slots, ascending.
 fn empty_of(cell: &[[i32; 4]]) -> Vec<usize> {
-    (0..cell.len()).filter(|&k| cell[k][3] < 0).collect()
+    (0..cell.len()).filter(|&k| is_empty(&cell[k])).collect()
 }
 
 /// Workgroups for `count` threads (at least one: an empty world's kernels run as no-ops).
@@ -1259,7 +1264,7 @@ impl GpuWorld {
                         .to_position([c[0], c[1], c[2]], [o[0], o[1], o[2]])
                 })
                 .collect(),
-            cell.iter().map(|c| c[3] < 0).collect(),
+            cell.iter().map(is_empty).collect(),
         ))
     }
 
@@ -1283,7 +1288,7 @@ impl GpuWorld {
             velocity: vel.iter().map(v3).collect(),
             angular_velocity: omg.iter().map(v3).collect(),
             radius: self.radius.clone(),
-            removed: cell.iter().map(|c| c[3] < 0).collect(),
+            removed: cell.iter().map(is_empty).collect(),
             contacts: trq.iter().map(|t| t[3] as u32).collect(),
         })
     }
