@@ -5,52 +5,180 @@
 //!
 //! Specs travel as JSON because the job server stores and edits them (factor values are
 //! written at dotted paths) without knowing each kind's Rust type. Each kind is an
-//! [`Experiment`] in its own folder; here each is one line per dispatch.
+//! [`Experiment`] in its own folder; the `registry!` call below names them, one
+//! line per kind, and [`registry!`] makes of it the [`Kind`] enum, the names, the parsed-spec
+//! enum and every dispatch (one line per kind each, like mini-redis's `Command`).
 
 use serde::Serialize;
 use serde_json::Value;
 
-use crate::aor::{Aor, AorSpec};
 use crate::backend::{BackendKind, Engine};
-use crate::drill::{Drill, DrillSpec};
-pub use crate::experiment::{
-    CheckpointStore, Experiment, ExperimentError, Kind, NoCheckpoints, Outcome, KINDS,
-};
-use crate::formula::{Formula, FormulaSpec};
+pub use crate::experiment::{CheckpointStore, Experiment, ExperimentError, NoCheckpoints, Outcome};
 use crate::progress::Control;
-use crate::replay::{ReplaySpec, TableLookup};
-use crate::shear::{Shear, ShearSpec};
 pub use crate::soil::{BedStore, NoBedStore};
 
-impl Kind {
-    /// Presets the kind offers (the first is its default).
-    pub fn presets(self) -> &'static [&'static str] {
-        match self {
-            Kind::Aor => Aor::PRESETS,
-            Kind::Drill => Drill::PRESETS,
-            Kind::Shear => Shear::PRESETS,
-            Kind::TableLookup => TableLookup::PRESETS,
-            Kind::Formula => Formula::PRESETS,
+/// Makes, from one line per kind (`Variant = Type`, the type an [`Experiment`]), the kind
+/// enum [`Kind`] with its names ([`KINDS`]) and presets, the parsed-spec enum
+/// [`ExperimentSpec`] and its dispatch.
+macro_rules! registry {
+    ($($(#[$doc:meta])* $variant:ident = $kind:ty),+ $(,)?) => {
+        /// An experiment kind, parsed once from its name ([`Kind::parse`]) and dispatched by
+        /// `match`.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum Kind {
+            $($(#[$doc])* $variant,)+
         }
-    }
 
-    /// The complete spec: `overrides` merged over `preset` (objects key by key, see
-    /// [`merge_json`]), parsed and checked. Without a preset a kind that has presets starts
-    /// from its default one; a kind without presets takes the overrides as the whole spec.
-    pub fn prepare(
-        self,
-        preset: Option<&str>,
-        overrides: &Value,
-    ) -> Result<ExperimentSpec, ExperimentError> {
-        Ok(match self {
-            Kind::Aor => ExperimentSpec::Aor(prepare::<Aor>(preset, overrides)?),
-            Kind::Drill => ExperimentSpec::Drill(prepare::<Drill>(preset, overrides)?),
-            Kind::Shear => ExperimentSpec::Shear(prepare::<Shear>(preset, overrides)?),
-            Kind::TableLookup => {
-                ExperimentSpec::TableLookup(prepare::<TableLookup>(preset, overrides)?)
+        /// Names of the kinds a job may give (`Kind::ALL`'s names).
+        pub const KINDS: [&str; [$(<$kind as Experiment>::NAME),+].len()] =
+            [$(<$kind as Experiment>::NAME),+];
+
+        impl Kind {
+            /// Every kind, in the order [`KINDS`] names them.
+            pub const ALL: [Kind; KINDS.len()] = [$(Kind::$variant),+];
+
+            /// The name a job gives.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(Kind::$variant => <$kind as Experiment>::NAME,)+
+                }
             }
-            Kind::Formula => ExperimentSpec::Formula(prepare::<Formula>(preset, overrides)?),
-        })
+
+            /// Presets the kind offers (the first is its default).
+            pub fn presets(self) -> &'static [&'static str] {
+                match self {
+                    $(Kind::$variant => <$kind as Experiment>::PRESETS,)+
+                }
+            }
+
+            /// The engines that run every spec of the kind.
+            pub fn backends(self) -> &'static [BackendKind] {
+                match self {
+                    $(Kind::$variant => <$kind as Experiment>::BACKENDS,)+
+                }
+            }
+
+            /// The complete spec: `overrides` merged over `preset` (objects key by key, see
+            /// [`merge_json`]), parsed and checked. Without a preset a kind that has presets
+            /// starts from its default one; a kind without presets takes the overrides as the
+            /// whole spec.
+            pub fn prepare(
+                self,
+                preset: Option<&str>,
+                overrides: &Value,
+            ) -> Result<ExperimentSpec, ExperimentError> {
+                Ok(match self {
+                    $(Kind::$variant => {
+                        ExperimentSpec::$variant(prepare::<$kind>(preset, overrides)?)
+                    })+
+                })
+            }
+        }
+
+        /// A spec parsed and checked for its kind: the typed form every entry point works on
+        /// (parsed once, like mini-redis's `Command`), each method one line per kind.
+        #[derive(Debug, Clone, PartialEq, Serialize)]
+        #[serde(untagged)]
+        pub enum ExperimentSpec {
+            $($variant(<$kind as Experiment>::Spec),)+
+        }
+
+        impl ExperimentSpec {
+            /// Parses and validates `spec` as a complete spec of `kind`.
+            pub fn parse(kind: Kind, spec: &Value) -> Result<ExperimentSpec, ExperimentError> {
+                Ok(match kind {
+                    $(Kind::$variant => ExperimentSpec::$variant(<$kind>::parse(spec)?),)+
+                })
+            }
+
+            pub fn kind(&self) -> Kind {
+                match self {
+                    $(ExperimentSpec::$variant(_) => Kind::$variant,)+
+                }
+            }
+
+            /// [`ExperimentSpec::run`] on `engine`; a kind or spec the engine does not run is
+            /// refused ([`ExperimentSpec::check_backend`]'s error), never run on the CPU
+            /// instead. A run on the GPU keeps no checkpoint.
+            pub fn run_on(
+                self,
+                engine: Engine<'_>,
+                seed: u64,
+                progress: &mut dyn FnMut(f64) -> Control,
+                beds: &mut dyn BedStore,
+                checkpoints: &mut dyn CheckpointStore,
+            ) -> Result<Outcome, ExperimentError> {
+                let (p, b, c, e) = (progress, beds, checkpoints, engine);
+                match self {
+                    $(ExperimentSpec::$variant(s) => <$kind>::run_on(s, seed, e, p, b, c),)+
+                }
+            }
+
+            /// Ok if the `backend` engine runs this spec; else
+            /// [`ExperimentError::Unsupported`], naming what it lacks. A job server asks at
+            /// submission, before any worker opens a GPU.
+            pub fn check_backend(&self, backend: BackendKind) -> Result<(), ExperimentError> {
+                match self {
+                    $(ExperimentSpec::$variant(s) => <$kind>::check_backend(s, backend),)+
+                }
+            }
+
+            /// The key under which the run with `seed` keeps its checkpoint, for a kind that
+            /// keeps checkpoints (angle of repose). A worker uses it to drop the checkpoint of
+            /// a run nobody will continue.
+            pub fn checkpoint_key(&self, seed: u64) -> Option<String> {
+                match self {
+                    $(ExperimentSpec::$variant(s) => <$kind>::checkpoint_key(s, seed),)+
+                }
+            }
+
+            /// The key of the settled bed the run with `seed` builds or reuses, for a kind that
+            /// runs on one (drilling, shear, triaxial).
+            pub fn bed_key(&self, seed: u64) -> Option<String> {
+                match self {
+                    $(ExperimentSpec::$variant(s) => <$kind>::bed_key(s, seed),)+
+                }
+            }
+        }
+    };
+}
+
+registry! {
+    /// Angle of repose (`aor`).
+    Aor = crate::aor::Aor,
+    /// The drilling (pore-forming) test (`drill`).
+    Drill = crate::drill::Drill,
+    /// The direct shear test (`shear`).
+    Shear = crate::shear::Shear,
+    /// The test aid that answers from a table of known results (`table_lookup`).
+    TableLookup = crate::replay::TableLookup,
+    /// The test aid that answers with closed forms and seeded noise (`formula`).
+    Formula = crate::formula::Formula,
+}
+
+impl Kind {
+    /// The kind called `name`.
+    pub fn parse(name: &str) -> Result<Kind, ExperimentError> {
+        Kind::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| ExperimentError::UnknownKind {
+                kind: name.into(),
+                known: &KINDS,
+            })
+    }
+}
+
+impl std::str::FromStr for Kind {
+    type Err = ExperimentError;
+    fn from_str(name: &str) -> Result<Kind, ExperimentError> {
+        Kind::parse(name)
+    }
+}
+
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 
@@ -60,7 +188,7 @@ fn prepare<E: Experiment>(
     overrides: &Value,
 ) -> Result<E::Spec, ExperimentError> {
     let unknown_preset = |valid: String| ExperimentError::UnknownPreset {
-        kind: E::KIND.name().into(),
+        kind: E::NAME.into(),
         preset: preset.unwrap_or_default().into(),
         valid,
     };
@@ -77,43 +205,10 @@ fn prepare<E: Experiment>(
     E::parse(&spec)
 }
 
-/// A spec parsed and checked for its kind: the typed form every entry point works on (parsed
-/// once, like mini-redis's `Command`), each method one line per kind.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(untagged)]
-pub enum ExperimentSpec {
-    Aor(AorSpec),
-    Drill(DrillSpec),
-    Shear(ShearSpec),
-    TableLookup(ReplaySpec),
-    Formula(FormulaSpec),
-}
-
 impl ExperimentSpec {
-    /// Parses and validates `spec` as a complete spec of `kind`.
-    pub fn parse(kind: Kind, spec: &Value) -> Result<ExperimentSpec, ExperimentError> {
-        Ok(match kind {
-            Kind::Aor => ExperimentSpec::Aor(Aor::parse(spec)?),
-            Kind::Drill => ExperimentSpec::Drill(Drill::parse(spec)?),
-            Kind::Shear => ExperimentSpec::Shear(Shear::parse(spec)?),
-            Kind::TableLookup => ExperimentSpec::TableLookup(TableLookup::parse(spec)?),
-            Kind::Formula => ExperimentSpec::Formula(Formula::parse(spec)?),
-        })
-    }
-
     /// A job's kind (by name) and spec, parsed once.
     pub fn parse_job(kind: &str, spec: &Value) -> Result<ExperimentSpec, ExperimentError> {
         ExperimentSpec::parse(Kind::parse(kind)?, spec)
-    }
-
-    pub fn kind(&self) -> Kind {
-        match self {
-            ExperimentSpec::Aor(_) => Aor::KIND,
-            ExperimentSpec::Drill(_) => Drill::KIND,
-            ExperimentSpec::Shear(_) => Shear::KIND,
-            ExperimentSpec::TableLookup(_) => TableLookup::KIND,
-            ExperimentSpec::Formula(_) => Formula::KIND,
-        }
     }
 
     /// The JSON form a job carries.
@@ -137,71 +232,12 @@ impl ExperimentSpec {
         self.run_on(Engine::Cpu, seed, progress, beds, checkpoints)
     }
 
-    /// [`ExperimentSpec::run`] on `engine`; a kind or spec the engine does not run is
-    /// refused ([`ExperimentSpec::check_backend`]'s error), never run on the CPU instead. A
-    /// run on the GPU keeps no checkpoint.
-    pub fn run_on(
-        self,
-        engine: Engine<'_>,
-        seed: u64,
-        progress: &mut dyn FnMut(f64) -> Control,
-        beds: &mut dyn BedStore,
-        checkpoints: &mut dyn CheckpointStore,
-    ) -> Result<Outcome, ExperimentError> {
-        let (p, b, c, e) = (progress, beds, checkpoints, engine);
-        match self {
-            ExperimentSpec::Aor(s) => Aor::run_on(s, seed, e, p, b, c),
-            ExperimentSpec::Drill(s) => Drill::run_on(s, seed, e, p, b, c),
-            ExperimentSpec::Shear(s) => Shear::run_on(s, seed, e, p, b, c),
-            ExperimentSpec::TableLookup(s) => TableLookup::run_on(s, seed, e, p, b, c),
-            ExperimentSpec::Formula(s) => Formula::run_on(s, seed, e, p, b, c),
-        }
-    }
-
-    /// Ok if the `backend` engine runs this spec (on the GPU: every `aor`, `drill` and `shear` spec);
-    /// else [`ExperimentError::Unsupported`], naming what it lacks.
-    /// A job server asks at submission, before any worker opens a GPU.
-    pub fn check_backend(&self, backend: BackendKind) -> Result<(), ExperimentError> {
-        match self {
-            ExperimentSpec::Aor(s) => Aor::check_backend(s, backend),
-            ExperimentSpec::Drill(s) => Drill::check_backend(s, backend),
-            ExperimentSpec::Shear(s) => Shear::check_backend(s, backend),
-            ExperimentSpec::TableLookup(s) => TableLookup::check_backend(s, backend),
-            ExperimentSpec::Formula(s) => Formula::check_backend(s, backend),
-        }
-    }
-
     /// [`ExperimentSpec::checkpoint_key`] of the run on `backend`: none on the GPU (a GPU run
     /// neither keeps a checkpoint nor continues a CPU run's).
     pub fn checkpoint_key_on(&self, backend: BackendKind, seed: u64) -> Option<String> {
         match backend {
             BackendKind::Cpu => self.checkpoint_key(seed),
             BackendKind::Gpu => None,
-        }
-    }
-
-    /// The key under which the run with `seed` keeps its checkpoint, for a kind that keeps
-    /// checkpoints (angle of repose). A worker uses it to drop the checkpoint of a run nobody
-    /// will continue.
-    pub fn checkpoint_key(&self, seed: u64) -> Option<String> {
-        match self {
-            ExperimentSpec::Aor(s) => Aor::checkpoint_key(s, seed),
-            ExperimentSpec::Drill(s) => Drill::checkpoint_key(s, seed),
-            ExperimentSpec::Shear(s) => Shear::checkpoint_key(s, seed),
-            ExperimentSpec::TableLookup(s) => TableLookup::checkpoint_key(s, seed),
-            ExperimentSpec::Formula(s) => Formula::checkpoint_key(s, seed),
-        }
-    }
-
-    /// The key of the settled bed the run with `seed` builds or reuses, for a kind that runs
-    /// on one (drilling, shear).
-    pub fn bed_key(&self, seed: u64) -> Option<String> {
-        match self {
-            ExperimentSpec::Aor(s) => Aor::bed_key(s, seed),
-            ExperimentSpec::Drill(s) => Drill::bed_key(s, seed),
-            ExperimentSpec::Shear(s) => Shear::bed_key(s, seed),
-            ExperimentSpec::TableLookup(s) => TableLookup::bed_key(s, seed),
-            ExperimentSpec::Formula(s) => Formula::bed_key(s, seed),
         }
     }
 }
@@ -291,6 +327,7 @@ pub fn merge_json(base: Value, over: Value) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::aor::AorSpec;
     use serde_json::json;
 
     #[test]

@@ -1,10 +1,10 @@
-//! What every experiment kind is to the catalog: its name ([`Kind`]), what it reports
-//! ([`Outcome`], [`ExperimentError`]), the checkpoint store a run may use
-//! ([`CheckpointStore`]; settled beds have [`BedStore`]) and the [`Experiment`] trait each
-//! kind implements in its own folder.
+//! What every experiment kind is to the catalog: what it reports ([`Outcome`],
+//! [`ExperimentError`]), the checkpoint store a run may use ([`CheckpointStore`]; settled beds
+//! have [`BedStore`]), the [`Experiment`] trait each kind implements in its own folder, and
+//! [`BedKind`], the shorter form of it for a kind that runs on a settled bed.
 //!
-//! A leaf module: the kinds import it, it imports no kind (the catalog, above them all, puts
-//! them behind one interface).
+//! A leaf module: the kinds import it, it imports no kind (the catalog's registry, above them
+//! all, names them and puts them behind one interface).
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -15,75 +15,15 @@ use serde_json::Value;
 
 use crate::backend::{BackendError, BackendKind, Engine};
 use crate::progress::Control;
-use crate::soil::BedStore;
-
-/// An experiment kind, parsed once from its name ([`Kind::parse`]) and dispatched by `match`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Kind {
-    /// Angle of repose (`aor`).
-    Aor,
-    /// The drilling (pore-forming) test (`drill`).
-    Drill,
-    /// The direct shear test (`shear`).
-    Shear,
-    /// The test aid that answers from a table of known results (`table_lookup`).
-    TableLookup,
-    /// The test aid that answers with closed forms and seeded noise (`formula`).
-    Formula,
-}
-
-impl Kind {
-    /// Every kind, in the order [`KINDS`] names them.
-    pub const ALL: [Kind; 5] = [
-        Kind::Aor,
-        Kind::Drill,
-        Kind::Shear,
-        Kind::TableLookup,
-        Kind::Formula,
-    ];
-
-    /// The kind called `name`.
-    pub fn parse(name: &str) -> Result<Kind, ExperimentError> {
-        Kind::ALL
-            .into_iter()
-            .find(|k| k.name() == name)
-            .ok_or_else(|| ExperimentError::UnknownKind { kind: name.into() })
-    }
-
-    /// The name a job gives.
-    pub fn name(self) -> &'static str {
-        match self {
-            Kind::Aor => "aor",
-            Kind::Drill => "drill",
-            Kind::Shear => "shear",
-            Kind::TableLookup => "table_lookup",
-            Kind::Formula => "formula",
-        }
-    }
-}
-
-impl std::str::FromStr for Kind {
-    type Err = ExperimentError;
-    fn from_str(name: &str) -> Result<Kind, ExperimentError> {
-        Kind::parse(name)
-    }
-}
-
-impl std::fmt::Display for Kind {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// Names of the kinds a job may give (`Kind::ALL`'s names).
-pub const KINDS: [&str; 5] = ["aor", "drill", "shear", "table_lookup", "formula"];
+use crate::soil::{run_on_bed, BedStore, OnBed, OnBedError};
+use crate::Spec;
 
 /// One experiment kind, implemented in the kind's own folder: its spec, presets, parsing and
 /// checking, the run, and the keys under which a run keeps what outlives it. The catalog
 /// dispatches to it with one line per kind.
 pub trait Experiment {
-    /// The kind this is.
-    const KIND: Kind;
+    /// The name a job gives (the registry's name for the kind).
+    const NAME: &'static str;
     /// The kind's spec, as a job carries it (its JSON form is what a job server stores).
     type Spec: Serialize;
     /// The presets [`Experiment::preset`] offers, the default first; empty (the default):
@@ -110,18 +50,18 @@ pub trait Experiment {
         checkpoints: &mut dyn CheckpointStore,
     ) -> Result<Outcome, ExperimentError>;
 
-    /// Whether the GPU engine runs every spec of this kind. A kind that says so overrides
-    /// [`Experiment::run_on`].
-    const RUNS_ON_GPU: bool = false;
+    /// The engines that run every spec of this kind. A kind that names another than the CPU
+    /// overrides [`Experiment::run_on`].
+    const BACKENDS: &'static [BackendKind] = &[BackendKind::Cpu];
 
     /// Ok if the `backend` engine runs `spec`; else why not, naming what it does not simulate
-    /// ([`ExperimentError::Unsupported`]). The default: the CPU engine, and the GPU's for a
-    /// kind that [runs on it](Experiment::RUNS_ON_GPU).
+    /// ([`ExperimentError::Unsupported`]). The default: the engines of
+    /// [`Experiment::BACKENDS`].
     fn check_backend(_spec: &Self::Spec, backend: BackendKind) -> Result<(), ExperimentError> {
-        match backend {
-            BackendKind::Cpu => Ok(()),
-            BackendKind::Gpu if Self::RUNS_ON_GPU => Ok(()),
-            other => Err(ExperimentError::cpu_only(Self::KIND, other)),
+        if Self::BACKENDS.contains(&backend) {
+            Ok(())
+        } else {
+            Err(ExperimentError::not_on(Self::NAME, Self::BACKENDS, backend))
         }
     }
 
@@ -137,7 +77,11 @@ pub trait Experiment {
     ) -> Result<Outcome, ExperimentError> {
         match engine {
             Engine::Cpu => Self::run(spec, seed, progress, beds, checkpoints),
-            Engine::Gpu(_) => Err(ExperimentError::cpu_only(Self::KIND, engine.kind())),
+            Engine::Gpu(_) => Err(ExperimentError::not_on(
+                Self::NAME,
+                Self::BACKENDS,
+                engine.kind(),
+            )),
         }
     }
 
@@ -151,6 +95,91 @@ pub trait Experiment {
     /// checkpoints.
     fn checkpoint_key(_spec: &Self::Spec, _seed: u64) -> Option<String> {
         None
+    }
+}
+
+/// A kind that runs on a settled bed (the drilling, shear and triaxial tests): it writes what
+/// differs (its spec, its run on an engine as an [`OnBed`], how a finished run reads) and is an
+/// [`Experiment`] through the impl below: the run's seed written into the spec, the bed built
+/// or reused ([`run_on_bed`]), the run's errors mapped once ([`ExperimentError::on_bed`]), the
+/// CPU run and the bed key.
+pub trait BedKind {
+    /// The name a job gives.
+    const NAME: &'static str;
+    /// The engines that run every spec of the kind.
+    const BACKENDS: &'static [BackendKind] = &[BackendKind::Cpu, BackendKind::Gpu];
+    /// The kind's spec (its presets and checks are the [`Spec`]'s).
+    type Spec: Spec;
+    /// A finished run.
+    type Run;
+    /// The spec on an engine: how it names, builds and runs on its bed.
+    type On<'a>: OnBed<Run = Self::Run, Error = OnBedError>
+    where
+        Self: 'a;
+
+    /// `spec` run on `engine`.
+    fn on<'a>(spec: &'a Self::Spec, engine: Engine<'a>) -> Self::On<'a>;
+
+    /// Writes the run's seed into `spec`.
+    fn set_seed(spec: &mut Self::Spec, seed: u64);
+
+    /// The outcome of a finished run on `engine`: its metrics, details and pictures, or why
+    /// it gave no result.
+    fn outcome(run: Self::Run, engine: Engine<'_>) -> Result<Outcome, ExperimentError>;
+}
+
+impl<K: BedKind> Experiment for K {
+    const NAME: &'static str = K::NAME;
+    type Spec = K::Spec;
+    const PRESETS: &'static [&'static str] = <K::Spec as Spec>::PRESETS;
+    const BACKENDS: &'static [BackendKind] = K::BACKENDS;
+
+    fn preset(name: &str) -> Option<K::Spec> {
+        <K::Spec as Spec>::preset(name).ok()
+    }
+
+    fn parse(spec: &Value) -> Result<K::Spec, ExperimentError> {
+        parse_spec(K::NAME, spec, <K::Spec as Spec>::validate)
+    }
+
+    /// The bed is taken from `beds` when it holds one of this key, else built (in the first
+    /// part of the progress, [`OnBed::BED_SHARE`]) and kept there ([`run_on_bed`]). The
+    /// outcome is the same, bit for bit, whether the bed was built or reused
+    /// (`details.bed.reused` says which).
+    fn run(
+        spec: K::Spec,
+        seed: u64,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        Self::run_on(spec, seed, Engine::Cpu, progress, beds, checkpoints)
+    }
+
+    /// [`Experiment::run`] on `engine`: the bed is settled on that engine too, and kept under
+    /// its own key (a GPU bed's ends in `-gpu`), so a run never uses another engine's bed. A
+    /// GPU failure during the run is this machine's ([`ExperimentError::Local`]). No
+    /// checkpoints.
+    fn run_on(
+        mut spec: K::Spec,
+        seed: u64,
+        engine: Engine<'_>,
+        progress: &mut dyn FnMut(f64) -> Control,
+        beds: &mut dyn BedStore,
+        _checkpoints: &mut dyn CheckpointStore,
+    ) -> Result<Outcome, ExperimentError> {
+        K::set_seed(&mut spec, seed);
+        let run = run_on_bed(&K::on(&spec, engine), beds, &mut |p| progress(p.fraction))
+            .map_err(|e| ExperimentError::on_bed(engine.kind(), e))?;
+        K::outcome(run, engine)
+    }
+
+    /// The key of the bed the CPU run with `seed` uses (a GPU run's ends in `-gpu`).
+    fn bed_key(spec: &K::Spec, seed: u64) -> Option<String> {
+        let mut spec = spec.clone();
+        K::set_seed(&mut spec, seed);
+        let key = K::on(&spec, Engine::Cpu).bed_key();
+        Some(key)
     }
 }
 
@@ -172,7 +201,7 @@ pub trait InvalidField: std::fmt::Display {
 /// The spec of `kind` in `spec`: deserialised, then checked by `validate`. Either failure is an
 /// [`ExperimentError::InvalidSpec`] (with the field's path where `validate` names it).
 pub fn parse_spec<S, E>(
-    kind: Kind,
+    kind: &str,
     spec: &Value,
     validate: impl FnOnce(&S) -> Result<(), E>,
 ) -> Result<S, ExperimentError>
@@ -192,9 +221,12 @@ where
 /// Why a spec cannot be used or a run could not produce a result.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ExperimentError {
-    /// Not one of [`KINDS`].
-    #[error("unknown experiment kind {kind:?} (kinds: {})", KINDS.join(", "))]
-    UnknownKind { kind: String },
+    /// Not one of the registry's kinds (`known`, the catalog's `KINDS`).
+    #[error("unknown experiment kind {kind:?} (kinds: {})", known.join(", "))]
+    UnknownKind {
+        kind: String,
+        known: &'static [&'static str],
+    },
     /// The kind has no such preset.
     #[error("unknown preset {preset:?} for kind {kind:?} (presets: {valid})")]
     UnknownPreset {
@@ -247,14 +279,29 @@ impl ExperimentError {
         }
     }
 
-    /// A kind that runs on the CPU engine only, asked to run on `backend`.
-    pub fn cpu_only(kind: Kind, backend: BackendKind) -> ExperimentError {
+    /// The kind `kind`, which runs on the engines `runs_on` only, asked to run on `backend`.
+    pub fn not_on(kind: &str, runs_on: &[BackendKind], backend: BackendKind) -> ExperimentError {
+        let engines: Vec<&str> = runs_on.iter().map(|b| b.label()).collect();
+        let only = if engines.len() == 1 { " only" } else { "" };
         ExperimentError::Unsupported {
             backend,
             message: format!(
-                "the `{kind}` experiment runs on the CPU backend only, not the {} backend",
+                "the `{kind}` experiment runs on the {} backend{only}, not the {} backend",
+                engines.join(" and "),
                 backend.label()
             ),
+        }
+    }
+
+    /// A run on a settled bed that could not start or failed on `backend`: cancelled; what
+    /// the backend does not simulate, or a GPU failure ([`ExperimentError::on_backend`]);
+    /// else a spec the run refuses (no field named).
+    pub fn on_bed(backend: BackendKind, e: OnBedError) -> ExperimentError {
+        let message = e.to_string();
+        match e {
+            OnBedError::Cancelled => ExperimentError::Cancelled,
+            OnBedError::Backend(b) => ExperimentError::on_backend(backend, b, message),
+            other => ExperimentError::refused(&other),
         }
     }
 

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use crate::experiment::{
-    parse_spec, start, CheckpointStore, Experiment, ExperimentError, InvalidField, Kind, Outcome,
+    parse_spec, start, CheckpointStore, Experiment, ExperimentError, InvalidField, Outcome,
 };
 use crate::progress::Control;
 use crate::soil::BedStore;
@@ -129,11 +129,11 @@ impl InvalidField for ReplayError {
 pub struct TableLookup;
 
 impl Experiment for TableLookup {
-    const KIND: Kind = Kind::TableLookup;
+    const NAME: &'static str = "table_lookup";
     type Spec = ReplaySpec;
 
     fn parse(spec: &Value) -> Result<ReplaySpec, ExperimentError> {
-        parse_spec(Kind::TableLookup, spec, ReplaySpec::validate)
+        parse_spec(Self::NAME, spec, ReplaySpec::validate)
     }
 
     /// The matching row's responses; no row matching is no result (under any seed).

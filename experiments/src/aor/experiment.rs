@@ -9,7 +9,7 @@ use super::checkpoint::{checkpoint_key, AorCheckpoint};
 use super::run::{run_aor_on, run_aor_with_checkpoints, AorError, AorRun, Checkpoints, RunStatus};
 use super::spec::{AorSpec, PRESETS};
 use crate::backend::{BackendKind, Engine};
-use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
+use crate::experiment::{parse_spec, CheckpointStore, Experiment, ExperimentError, Outcome};
 use crate::progress::Control;
 use crate::soil::BedStore;
 use crate::Spec;
@@ -19,7 +19,7 @@ use crate::Spec;
 pub struct Aor;
 
 impl Experiment for Aor {
-    const KIND: Kind = Kind::Aor;
+    const NAME: &'static str = "aor";
     type Spec = AorSpec;
     const PRESETS: &'static [&'static str] = &PRESETS;
 
@@ -28,7 +28,7 @@ impl Experiment for Aor {
     }
 
     fn parse(spec: &Value) -> Result<AorSpec, ExperimentError> {
-        parse_spec(Kind::Aor, spec, AorSpec::validate)
+        parse_spec(Self::NAME, spec, AorSpec::validate)
     }
 
     /// Continued from the checkpoint under [`checkpoint_key`] if `checkpoints` has one of this
@@ -46,7 +46,7 @@ impl Experiment for Aor {
     }
 
     /// Both engines run every angle-of-repose spec (either protocol, every contact law).
-    const RUNS_ON_GPU: bool = true;
+    const BACKENDS: &'static [BackendKind] = &[BackendKind::Cpu, BackendKind::Gpu];
 
     /// On the CPU, [`Experiment::run`] as documented there. On the GPU the run keeps no
     /// checkpoint and continues none (`checkpoints` is not used: a GPU run cannot be continued

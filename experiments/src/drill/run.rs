@@ -17,59 +17,22 @@ use serde::{Deserialize, Serialize};
 
 use super::measure::{measure_hole, solid_volume_in_cylinder, HoleMeasurement};
 use super::picture::{forces_svg, section_svg};
-use super::spec::{DrillSpec, SpecError};
-use crate::backend::{BackendError, Engine, Grains};
+use super::spec::DrillSpec;
+use crate::backend::{Engine, Grains};
 pub use crate::progress::{Control, Progress};
 use crate::soil::advance_to_check;
 use crate::soil::{
     bin_world, height_field, is_stable, kinetic_energy_ratio, run_on_bed, setup, surface_level,
-    BedError, BedInfo, BedMismatch, HeightField, NoBedStore, On, OnBed, SettledBed, SettledBy,
-    SplitMix,
+    BedInfo, HeightField, NoBedStore, On, OnBed, OnBedError, SettledBed, SettledBy, SplitMix,
 };
 
-/// Why a run could not start or was stopped before it could report (a finished run whose soil
-/// did not settle is a [`DrillResult`] with a non-`ok` status, not an error).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DrillError {
-    #[error(transparent)]
-    Spec(#[from] SpecError),
-    /// The engine rejected the world built from the spec (materials, mesh, grains).
-    #[error("{part}: {reason}")]
-    Build { part: &'static str, reason: String },
-    /// The bed handed to [`run_drill_on_bed`] was built for other parameters.
-    #[error(transparent)]
-    BedMismatch(#[from] BedMismatch),
-    /// The progress callback cancelled while the bed was being built.
-    #[error("cancelled")]
-    Cancelled,
-    /// `wall_time_cap` ran out while the bed was being built.
-    #[error("wall_time_cap ({cap_s} s) reached while building the {phase}")]
-    WallTimeCap { phase: &'static str, cap_s: f64 },
-    /// The engine backend cannot run the spec or failed (a GPU's).
-    #[error(transparent)]
-    Backend(#[from] BackendError),
-}
-
-impl From<BedError> for DrillError {
-    fn from(e: BedError) -> DrillError {
-        match e {
-            BedError::Spec(e) => DrillError::Spec(e),
-            BedError::Build { part, reason } => DrillError::Build { part, reason },
-            BedError::Cancelled => DrillError::Cancelled,
-            BedError::WallTimeCap { cap_s } => DrillError::WallTimeCap {
-                phase: "bed",
-                cap_s,
-            },
-            BedError::Backend(e) => DrillError::Backend(e),
-        }
-    }
-}
+/// Why a run could not start or was stopped before it could report: the error of every kind
+/// that runs on a settled bed ([`OnBedError`]; a finished run that did not go as planned is a
+/// [`DrillResult`] with a non-`ok` status, not an error).
+pub type DrillError = OnBedError;
 
 fn build_error(part: &'static str, e: impl std::fmt::Display) -> DrillError {
-    DrillError::Build {
-        part,
-        reason: e.to_string(),
-    }
+    OnBedError::build(part, e)
 }
 
 /// Overall outcome. Hole metrics are reported for `ok` and `not_settled` (see

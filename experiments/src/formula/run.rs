@@ -9,7 +9,7 @@ use serde_json::{json, Value};
 
 use super::error::FormulaFailure;
 use super::spec::FormulaSpec;
-use crate::experiment::{start, CheckpointStore, Experiment, ExperimentError, Kind, Outcome};
+use crate::experiment::{start, CheckpointStore, Experiment, ExperimentError, Outcome};
 use crate::progress::Control;
 use crate::soil::BedStore;
 
@@ -96,7 +96,7 @@ impl FormulaSpec {
 pub struct Formula;
 
 impl Experiment for Formula {
-    const KIND: Kind = Kind::Formula;
+    const NAME: &'static str = "formula";
     type Spec = FormulaSpec;
 
     fn parse(spec: &Value) -> Result<FormulaSpec, ExperimentError> {

@@ -35,59 +35,21 @@ use super::measure::{
     mohr_coulomb_fit, running_mean, shear_strength, MohrCoulomb, ShearRecord, StrengthPoint,
 };
 use super::picture::{curves_svg, strength_svg};
-use super::spec::{ShearSpec, SpecError};
-use crate::backend::{
-    advance_exactly, time_after, Backend, BackendError, Engine, PlaneStress, Window,
-};
+use super::spec::ShearSpec;
+use crate::backend::{advance_exactly, time_after, Backend, Engine, PlaneStress, Window};
 pub use crate::progress::{Control, Progress};
 use crate::soil::{
-    kinetic_energy_ratio, run_on_bed, setup, BedError, BedInfo, BedMismatch, NoBedStore, On, OnBed,
+    kinetic_energy_ratio, run_on_bed, setup, BedInfo, NoBedStore, On, OnBed, OnBedError,
     SettledBed, Setup,
 };
 
-/// Why a run could not start or was stopped before it could report (a finished run whose
-/// stages did not all consolidate is a [`ShearResult`] with a non-`ok` status, not an error).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ShearError {
-    #[error(transparent)]
-    Spec(#[from] SpecError),
-    /// The engine rejected the world built from the spec (materials, meshes, grains).
-    #[error("{part}: {reason}")]
-    Build { part: &'static str, reason: String },
-    /// The sample handed to [`run_shear_on_bed`] was built for other parameters.
-    #[error(transparent)]
-    BedMismatch(#[from] BedMismatch),
-    /// The progress callback cancelled.
-    #[error("cancelled")]
-    Cancelled,
-    /// `wall_time_cap` ran out.
-    #[error("wall_time_cap ({cap_s} s) reached while {phase}")]
-    WallTimeCap { phase: &'static str, cap_s: f64 },
-    /// The engine could not run the scene or stopped (a GPU failure).
-    #[error(transparent)]
-    Backend(#[from] BackendError),
-}
-
-impl From<BedError> for ShearError {
-    fn from(e: BedError) -> ShearError {
-        match e {
-            BedError::Spec(e) => ShearError::Spec(e),
-            BedError::Build { part, reason } => ShearError::Build { part, reason },
-            BedError::Cancelled => ShearError::Cancelled,
-            BedError::WallTimeCap { cap_s } => ShearError::WallTimeCap {
-                phase: "building the sample",
-                cap_s,
-            },
-            BedError::Backend(e) => ShearError::Backend(e),
-        }
-    }
-}
+/// Why a run could not start or was stopped before it could report: the error of every kind
+/// that runs on a settled bed ([`OnBedError`]; a finished run that did not go as planned is a
+/// [`ShearResult`] with a non-`ok` status, not an error).
+pub type ShearError = OnBedError;
 
 fn build_error(part: &'static str, e: impl std::fmt::Display) -> ShearError {
-    ShearError::Build {
-        part,
-        reason: e.to_string(),
-    }
+    OnBedError::build(part, e)
 }
 
 /// Overall outcome. The strength is reported for every status but `measurement_failed`.

@@ -5,9 +5,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::recipe::BedInfo;
-use crate::backend::Engine;
+use super::recipe::{BedError, BedInfo};
+use crate::backend::{BackendError, Engine};
 use crate::progress::{Control, Progress};
+use crate::spec_path::SpecError;
 
 /// Version of the bed recipe and of its stored form; part of every key, so a change to how
 /// beds are built or stored never reuses an old bed. 2: every float is stored as its bits
@@ -139,6 +140,55 @@ impl BedStore for NoBedStore {
 pub struct BedMismatch {
     pub expected: String,
     pub found: String,
+}
+
+/// Why a run on a settled bed (drilling, shear, triaxial) could not start or was stopped
+/// before it could report: one error for every such kind (a finished run that did not go as
+/// planned is the kind's result with its status, not an error).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum OnBedError {
+    #[error(transparent)]
+    Spec(#[from] SpecError),
+    /// The engine rejected the world built from the spec (materials, meshes, grains).
+    #[error("{part}: {reason}")]
+    Build { part: &'static str, reason: String },
+    /// The bed handed to the run was built for other parameters.
+    #[error(transparent)]
+    BedMismatch(#[from] BedMismatch),
+    /// The progress callback cancelled.
+    #[error("cancelled")]
+    Cancelled,
+    /// `wall_time_cap` ran out while the run was in `phase` (e.g. "building the bed").
+    #[error("wall_time_cap ({cap_s} s) reached while {phase}")]
+    WallTimeCap { phase: &'static str, cap_s: f64 },
+    /// The engine backend cannot run the spec or failed (a GPU's).
+    #[error(transparent)]
+    Backend(#[from] BackendError),
+}
+
+impl OnBedError {
+    /// The engine refused `part` of the world: `e` says why.
+    pub fn build(part: &'static str, e: impl std::fmt::Display) -> OnBedError {
+        OnBedError::Build {
+            part,
+            reason: e.to_string(),
+        }
+    }
+}
+
+impl From<BedError> for OnBedError {
+    fn from(e: BedError) -> OnBedError {
+        match e {
+            BedError::Spec(e) => OnBedError::Spec(e),
+            BedError::Build { part, reason } => OnBedError::Build { part, reason },
+            BedError::Cancelled => OnBedError::Cancelled,
+            BedError::WallTimeCap { cap_s } => OnBedError::WallTimeCap {
+                phase: "building the bed",
+                cap_s,
+            },
+            BedError::Backend(e) => OnBedError::Backend(e),
+        }
+    }
 }
 
 /// A spec of a kind that runs on a settled bed (the drilling test's, the shear test's), on an

@@ -11,7 +11,8 @@ mod spec;
 mod surface;
 
 pub use bed::{
-    run_on_bed, BedMismatch, BedStore, NoBedStore, On, OnBed, SettledBed, SettledBy, BED_FORMAT,
+    run_on_bed, BedMismatch, BedStore, NoBedStore, On, OnBed, OnBedError, SettledBed, SettledBy,
+    BED_FORMAT,
 };
 pub(crate) use recipe::{
     advance_to_check, bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix,
