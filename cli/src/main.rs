@@ -17,6 +17,7 @@ mod shear_cmd;
 mod sim;
 mod table;
 mod token_cmd;
+mod triaxial_cmd;
 mod up_cmd;
 mod worker_cmd;
 
@@ -50,6 +51,8 @@ enum Command {
     Drill(drill_cmd::DrillArgs),
     /// Direct shear virtual experiment: cohesion and friction angle (Mohr-Coulomb) of the soil.
     Shear(shear_cmd::ShearArgs),
+    /// Drained triaxial compression virtual experiment: c and φ (Mohr circles), E and ν.
+    Triaxial(triaxial_cmd::TriaxialArgs),
     /// Chart angle-of-repose runs (a grain-size or mass ladder): angle against heap height in
     /// grain diameters, as SVG.
     Ladder(ladder_cmd::LadderArgs),
@@ -110,6 +113,7 @@ fn main() -> ExitCode {
         Command::Aor(args) => aor_cmd::run(&args),
         Command::Drill(args) => drill_cmd::run(&args),
         Command::Shear(args) => shear_cmd::run(&args),
+        Command::Triaxial(args) => triaxial_cmd::run(&args),
         Command::Ladder(args) => ladder_cmd::run(&args),
         Command::Worker(args) => worker_cmd::run_worker(&args),
         Command::Up(args) => up_cmd::run(&args),

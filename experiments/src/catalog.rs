@@ -150,6 +150,8 @@ registry! {
     Drill = crate::drill::Drill,
     /// The direct shear test (`shear`).
     Shear = crate::shear::Shear,
+    /// The drained triaxial compression test (`triaxial`).
+    Triaxial = crate::triaxial::Triaxial,
     /// The test aid that answers from a table of known results (`table_lookup`).
     TableLookup = crate::replay::TableLookup,
     /// The test aid that answers with closed forms and seeded noise (`formula`).
@@ -516,6 +518,10 @@ mod tests {
             "drill/full b96e263b8828df22",
             "shear/default 4ceedad5d6ae2b0d",
             "shear/fast 85a596c68357ea10",
+            // Added with the kind (issue 50), pinned from here on.
+            "triaxial/default 3b73d88124db87bb",
+            "triaxial/fast b7437472e53ed2f5",
+            "triaxial/ci 176b1ddbb729bc10",
             "drill/default bed-v2-c799c2efba703217",
             "drill/fast bed-v2-a59bd87c59242559",
             "drill/full bed-v2-268f918f70a4d81b",
@@ -561,7 +567,7 @@ mod tests {
         );
     }
 
-    /// `aor` (both protocols), `drill` and `shear` run on the GPU with every contact law; every other
+    /// `aor` (both protocols), `drill`, `shear` and `triaxial` run on the GPU with every contact law; every other
     /// kind is refused by name and permanently (no worker's GPU runs it), and a GPU run keeps no
     /// checkpoint while the CPU's key stays what it was.
     #[test]
@@ -573,7 +579,7 @@ mod tests {
             json!({"soil_steel": {"cohesion": {"model": "jkr", "surface_energy": 0.1}}}),
             json!({"rolling_model": "epsd"}),
         ] {
-            for kind in [Kind::Aor, Kind::Drill, Kind::Shear] {
+            for kind in [Kind::Aor, Kind::Drill, Kind::Shear, Kind::Triaxial] {
                 if kind != Kind::Aor && over.get("protocol").is_some() {
                     continue;
                 }
@@ -590,10 +596,12 @@ mod tests {
             };
             let spec = kind.prepare(None, &spec).unwrap();
             spec.check_backend(BackendKind::Cpu).unwrap();
-            if matches!(kind, Kind::Aor | Kind::Drill | Kind::Shear) {
+            if matches!(kind, Kind::Aor | Kind::Drill | Kind::Shear | Kind::Triaxial) {
+                assert_eq!(kind.backends(), [BackendKind::Cpu, BackendKind::Gpu]);
                 spec.check_backend(BackendKind::Gpu).unwrap();
                 continue;
             }
+            assert_eq!(kind.backends(), [BackendKind::Cpu]);
             let err = spec.check_backend(BackendKind::Gpu).unwrap_err();
             assert!(
                 matches!(

@@ -16,6 +16,7 @@ pub mod shear;
 pub mod soil;
 mod spec_path;
 mod svg;
+pub mod triaxial;
 
 pub use spec_path::{Spec, SpecError};
 

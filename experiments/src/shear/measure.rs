@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::soil::running_mean;
+
 /// One shear stage at one normal stress: the box's horizontal displacement and the shear force
 /// the soil transmits across the shear plane, sample by sample.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -128,23 +130,6 @@ pub fn shear_strength(
         peak_displacement_m: record.displacement_m[peak_k],
         residual_pa: residual / record.area_m2,
     })
-}
-
-/// The centred running mean of `values` over `width` samples (fewer at the ends, where the
-/// window is cut to the record).
-pub fn running_mean(values: &[f64], width: usize) -> Vec<f64> {
-    let half = width.max(1) / 2;
-    let mut prefix = Vec::with_capacity(values.len() + 1);
-    prefix.push(0.0);
-    for v in values {
-        prefix.push(prefix.last().copied().unwrap_or(0.0) + v);
-    }
-    (0..values.len())
-        .map(|k| {
-            let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(values.len()));
-            (prefix[hi] - prefix[lo]) / (hi - lo) as f64
-        })
-        .collect()
 }
 
 /// The least-squares line τ = c + σ tan φ through `points`.

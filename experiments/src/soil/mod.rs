@@ -7,6 +7,7 @@
 
 mod bed;
 mod recipe;
+mod series;
 mod spec;
 mod surface;
 
@@ -18,6 +19,7 @@ pub(crate) use recipe::{
     advance_to_check, bin_world, is_stable, kinetic_energy_ratio, setup, Setup, SplitMix,
 };
 pub use recipe::{BedError, BedInfo, BedProgress, BedRecipe, BedSpec, BinSpec, SurfaceReading};
+pub use series::running_mean;
 pub(crate) use spec::{
     check_contacts, check_rayleigh_fraction, default_epsd_damping, default_rayleigh_fraction,
     max_radius, non_negative, positive,

@@ -19,3 +19,4 @@ mod gpu_common;
 mod shear_gpu;
 mod shear_run;
 mod shear_spec;
+mod triaxial_run;
