@@ -19,4 +19,5 @@ mod gpu_common;
 mod shear_gpu;
 mod shear_run;
 mod shear_spec;
+mod triaxial_gpu;
 mod triaxial_run;
