@@ -712,8 +712,9 @@ struct Recorded {
     wall_time_s: f64,
 }
 
-/// `examples/campaigns/paper_three_targets_bayesian.json` ran 54 DEM simulations and spent its
-/// budget (BENCHMARKS.md, "Campaigns"): one shear run in 27 reached the friction angle's band.
+/// `examples/campaigns/paper_three_targets_bayesian.json`, when it read c and φ from the direct
+/// shear test (`data/three_targets_bayesian_request.json`, that request as it was), ran 54 DEM
+/// simulations and spent its budget: one shear run in 27 reached the friction angle's band.
 /// Driven again with those recorded runs (the strategy's proposals are deterministic, so it asks
 /// for the same points in the same order), it stops after the third search round: the
 /// surrogates put the friction angle out of reach even alone in two assessments in a row, and
@@ -725,7 +726,7 @@ fn the_paper_three_targets_replayed_on_recorded_runs_stop_on_the_friction_angle_
         std::fs::read_to_string(format!("{root}/{path}")).unwrap_or_else(|e| panic!("{path}: {e}"))
     };
     let request: Value = serde_json::from_str(&text(
-        "examples/campaigns/paper_three_targets_bayesian.json",
+        "campaign/tests/campaign/data/three_targets_bayesian_request.json",
     ))
     .unwrap();
     let data: Value = serde_json::from_str(&text(

@@ -363,15 +363,15 @@ fn every_example_campaign_file_is_a_valid_request() {
                 labels,
                 [
                     "aor.angle_deg",
-                    "shear.cohesion_kpa",
-                    "shear.friction_angle_deg"
+                    "triaxial.cohesion_kpa",
+                    "triaxial.friction_angle_deg"
                 ]
             );
-            assert_eq!(request.experiment_keys(), ["aor", "shear"]);
-            // The heap is poured dry, as the paper's was: the cohesion acts on the shear test
-            // (and the drilling validation) only.
+            assert_eq!(request.experiment_keys(), ["aor", "triaxial"]);
+            // The heap is poured dry, as the paper's was: the cohesion acts on the triaxial
+            // test (the paper's strength test; and the drilling validation) only.
             let n7 = request.factors.iter().find(|f| f.name == "N7").unwrap();
-            assert!(n7.acts_on("shear") && !n7.acts_on("aor"));
+            assert!(n7.acts_on("triaxial") && !n7.acts_on("aor"));
             let v = request.drilling.as_ref().unwrap();
             assert_eq!(v.experiment.kind, "drill");
             assert_eq!(v.measured["opening_diameter_mm"], 63.20);
