@@ -87,10 +87,12 @@
 //!    `initial_points` (default `2·factors + 2`), one explicit batch per experiment the targets
 //!    need, all issued at once ([`Campaign::begin`] returns them all; [`Campaign::step`] takes
 //!    each finished one and answers [`Step::Wait`] until the round is complete).
-//! 2. **Surrogates**: one Gaussian process per response (anisotropic squared-exponential kernel
-//!    with estimated noise, inputs normalised to `[0, 1]`, outputs standardised; the `friedrich`
-//!    crate), and one on feasibility (+1 where every run gave its metrics, −1 where one failed)
-//!    when a run failed.
+//! 2. **Surrogates**: one Gaussian process per response over the factors written into its own
+//!    experiment only (anisotropic squared-exponential kernel with estimated noise, inputs
+//!    normalised to `[0, 1]`, outputs standardised; the `friedrich` crate; no length-scale
+//!    shorter than two sides of the cell each distinct setting stands for, `2·m^(-1/d)`), and
+//!    one on feasibility (+1 where every run gave its metrics, −1 where one failed) when a run
+//!    failed.
 //! 3. **Assessment**: over a few thousand candidates (a Latin hypercube and perturbations of the
 //!    best points), the probability that the mean of `verification.replicates` runs of every
 //!    target lands within its tolerance, times the probability of feasibility.
@@ -98,14 +100,22 @@
 //!    `stop_probability` (0.8); a failed verification's runs join the data and the search goes
 //!    on. Else **stop** when the targets conflict (each reachable alone with probability ≥ 0.5,
 //!    together below `conflict_probability`, two rounds running; the reason names the
-//!    responses), or when `max_runs` leaves no room (with room for the verification only, the
-//!    best point is verified). Else **propose** (`<name>: search round N`) `batch_size` points by
-//!    kriging believer and go to 2.
+//!    responses), when a target is out of reach even alone (below 0.5 everywhere, two rounds
+//!    running, and no run met it within two noise standard deviations at an edge of the box: a
+//!    target met so is named "met only at the edge of the factor box" with the factor and the
+//!    edge, and never stops the campaign), or when `max_runs` leaves no room (with room for the
+//!    verification only, the best point is verified). Else **propose** (`<name>: search round
+//!    N`) `batch_size` points by kriging believer and go to 2; the last one explores (the highest
+//!    probability at a mean moved up to two posterior standard deviations toward the targets):
+//!    for each target out of reach or met only at an edge, one aimed at it alone, else, with
+//!    two points or more, one for all targets.
 //! 5. The drilling validation, when asked for, runs at the verified point as in the chain.
 //!
 //! The result ([`Summary`]) adds `simulations` and `bayesian` ([`BayesianResult`]: the region
-//! of settings consistent with every measurement, each response's factor influences, the
-//! convergence, the Pareto front of the per-target misfits and the failed points). A campaign
+//! of settings consistent with every measurement, each response's factor influences (the
+//! total-effect share of each factor in the variation of its surrogate's mean; none for a
+//! factor not written into its experiment), the convergence, the Pareto front of the
+//! per-target misfits, the failed points and the targets met only at an edge). A campaign
 //! that ends without a verification still carries its best observed point there, with
 //! `within_tolerance: false`. All draws come from `seed` and the round, and the state holds
 //! every observation, so a campaign resumed from its stored JSON decides as an uninterrupted
@@ -117,11 +127,11 @@ mod request;
 
 pub use campaign::{
     Assessment, BayesState, BayesVerification, BayesianResult, CalibratedValue, Campaign,
-    CarryRule, ConvergencePoint, Decision, DrillMetric, DrillingOutcome, HeldFactor,
-    InfeasiblePoint, Influence, IssuedBatch, LevelSetPoint, Next, Observation, OptimumChoice,
-    ParetoPoint, PathPoint, PathState, Region, ResponseCheck, ResponseEffects, ScreeningOutcome,
-    StageKind, StageResult, Status, Step, Summary, SurfaceFitSummary, SurfaceRound,
-    VerificationOutcome,
+    CarryRule, ConvergencePoint, Decision, DrillMetric, DrillingOutcome, Edge, EdgeReach,
+    HeldFactor, InfeasiblePoint, Influence, IssuedBatch, LevelSetPoint, Next, Observation,
+    OptimumChoice, ParetoPoint, PathPoint, PathState, Region, ResponseCheck, ResponseEffects,
+    ScreeningOutcome, StageKind, StageResult, Status, Step, Summary, SurfaceFitSummary,
+    SurfaceRound, VerificationOutcome,
 };
 pub use error::CampaignError;
 pub use report::{report_html, report_json, ReportPictures};

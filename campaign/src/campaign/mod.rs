@@ -25,8 +25,8 @@ use repose_doe::design::{splitmix64, Factor};
 use serde::{Deserialize, Serialize};
 
 pub use bayes::{
-    Assessment, BayesState, BayesVerification, BayesianResult, ConvergencePoint, InfeasiblePoint,
-    Influence, Observation, ParetoPoint, Region,
+    Assessment, BayesState, BayesVerification, BayesianResult, ConvergencePoint, Edge, EdgeReach,
+    InfeasiblePoint, Influence, Observation, ParetoPoint, Region,
 };
 pub(crate) use model::{screening_fit, surface_fit};
 pub use outcome::{

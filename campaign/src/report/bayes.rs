@@ -26,6 +26,7 @@ pub(super) fn section(c: &Campaign) -> Markup {
         .summary
         .as_ref()
         .map(|s| s.parameters.iter().map(|p| p.value).collect::<Vec<f64>>());
+    let verified = c.summary.as_ref().is_some_and(|s| s.within_tolerance);
     let influences: Vec<Influence> = match result {
         Some(r) => r.influences.clone(),
         None => state
@@ -47,13 +48,17 @@ pub(super) fn section(c: &Campaign) -> Markup {
         (convergence_chart(&state.convergence))
         @if !influences.is_empty() {
             h3 { "Factor influences" }
-            p { "Each response's surrogate: the share of 1/length-scale of every factor (a \
-                 factor whose length-scale is long moves the response little over its range); \
-                 the estimated run-to-run noise beside it." }
+            p { "Each response's surrogate: every factor's share of the variation of its mean \
+                 over the factor box (the factor's total-effect index, the shares summing to \
+                 100 %), with its length-scale ℓ as a fraction of the range (long: the factor \
+                 moves the response little) and, beside the response, the estimated run-to-run \
+                 noise, the part of a run's variation over the box that the factors explain and \
+                 the shortest length-scale its runs can resolve. A factor not written into the \
+                 response's experiment is outside its surrogate: no share, by construction." }
             (influence_chart(&influences, &names))
         }
         @if let Some(r) = result {
-            (region_part(r, &targets, state, &names, &ranges, best.as_deref()))
+            (region_part(r, &targets, state, &names, &ranges, best.as_deref(), verified))
         }
     }
 }
@@ -142,12 +147,22 @@ fn influence_chart(influences: &[Influence], names: &[String]) -> Markup {
                 @match j {
                     None => {
                         text x="2" y=(y + bar - 2.0) font-size="12" font-weight="bold" {
-                            (inf.response) " (noise sd " (fmt_num(inf.noise_sd)) ")"
+                            (inf.response) " (noise sd " (fmt_num(inf.noise_sd))
+                            @if let Some(e) = inf.explained {
+                                "; factors explain " (fmt_num(100.0 * e)) " %"
+                            }
+                            @if let Some(l) = inf.min_length_scale {
+                                "; ℓ ≥ " (fmt_num(l))
+                            }
+                            ")"
                         }
                     }
                     Some(j) => {
                         text x=(label_w - 6.0) y=(y + bar - 3.0) font-size="11" text-anchor="end" {
-                            (names[*j]) " (ℓ " (fmt_num(inf.length_scales[*j])) ")"
+                            @match inf.length_scales[*j] {
+                                Some(l) => { (names[*j]) " (ℓ " (fmt_num(l)) ")" }
+                                None => { (names[*j]) " (not given)" }
+                            }
                         }
                         rect x=(label_w) y=(y) width=(inf.share[*j] * plot_w) height=(bar)
                             fill=(BLUE) {}
@@ -167,6 +182,7 @@ fn region_part(
     names: &[String],
     ranges: &[(f64, f64)],
     best: Option<&[f64]>,
+    verified: bool,
 ) -> Markup {
     let pairs: Vec<(usize, usize)> = (0..names.len())
         .flat_map(|i| (i + 1..names.len()).map(move |j| (i, j)))
@@ -177,7 +193,19 @@ fn region_part(
             "Settings whose probability of meeting every target (feasibility included) is at \
              least " (fmt_num(100.0 * r.region.threshold)) " % under the surrogates: "
             (fmt_num(100.0 * r.region.fraction)) " % of a uniform sample of the box."
-            @if r.region.points.is_empty() { " None: no setting is likely to meet them all." }
+            @if let Some(p) = r.region.at_result {
+                " The result's setting: " (fmt_num(100.0 * p)) " %"
+                @if verified { ", and its replicates verified it." } @else { "." }
+            }
+            @if r.region.points.is_empty() {
+                @if verified {
+                    " No sampled setting reaches the threshold: the surrogates, which allow for \
+                     the runs' noise, are less sure of the verified setting than its replicates \
+                     are. The verification, not the region, is the evidence for the result."
+                } @else {
+                    " None: no setting is likely to meet them all."
+                }
+            }
         }
         @if !r.region.extent.is_empty() {
             table {
@@ -201,6 +229,22 @@ fn region_part(
         }
         @if !r.out_of_reach.is_empty() {
             p.bad { "Out of reach in the factor box, even alone: " (r.out_of_reach.join(", ")) "." }
+        }
+        @if !r.at_edge.is_empty() {
+            p.bad {
+                "Met only at the edge of the factor box, not out of reach: "
+                @for (k, e) in r.at_edge.iter().enumerate() {
+                    @if k > 0 { "; " }
+                    (e.response) " ("
+                    @for (m, x) in e.edges.iter().enumerate() {
+                        @if m > 0 { ", " }
+                        (x.factor) " at its " (if x.high { "high" } else { "low" }) " edge, "
+                        (fmt_num(x.value))
+                    }
+                    "; closest run " (fmt_num(e.closest)) ")"
+                }
+                ". A wider range beyond that edge may hold it."
+            }
         }
         @if r.pareto.len() > 1 || !r.conflict.is_empty() {
             h3 { "Trade-off between the targets" }

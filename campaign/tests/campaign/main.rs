@@ -7,3 +7,4 @@ mod fallbacks;
 mod replay;
 mod strategies;
 mod targets;
+mod trust;

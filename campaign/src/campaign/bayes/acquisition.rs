@@ -1,6 +1,9 @@
 //! What a proposal aims at: the probability that the verified mean of every target lands within
 //! its tolerance, times the probability that the point is feasible, under the surrogates; in
-//! logarithms so that points far from every target still rank by how far they are.
+//! logarithms so that points far from every target still rank by how far they are. The
+//! exploration term is the same probability at an optimistic mean ([`ln_p_within_optimistic`]):
+//! an upper confidence bound, high where the surrogate does not know yet (an edge of the box it
+//! has not seen) as well as where it expects the target.
 
 use statrs::function::erf::erfc;
 
@@ -54,6 +57,21 @@ pub(crate) fn ln_p_within(p: &Prediction, band: Band, replicates: u32) -> f64 {
     let a = (band.target - band.half_width - p.mean) / sd;
     let b = (band.target + band.half_width - p.mean) / sd;
     ln_norm_interval(a, b)
+}
+
+/// How many posterior standard deviations the optimistic mean may move toward the target.
+pub(crate) const OPTIMISM: f64 = 2.0;
+
+/// [`ln_p_within`] at the most favourable latent mean within [`OPTIMISM`] posterior standard
+/// deviations of the prediction: an upper confidence bound on the probability.
+pub(crate) fn ln_p_within_optimistic(p: &Prediction, band: Band, replicates: u32) -> f64 {
+    let reach = OPTIMISM * p.sd;
+    let shift = (band.target - p.mean).clamp(-reach, reach);
+    let optimistic = Prediction {
+        mean: p.mean + shift,
+        ..*p
+    };
+    ln_p_within(&optimistic, band, replicates)
 }
 
 /// The probability that a point is feasible from the feasibility surrogate (fitted on +1 for
@@ -117,5 +135,37 @@ mod tests {
         // One run: P(|N(0,1)| ≤ 1) = 0.6827; four runs: P(|N(0,½)| ≤ 1) = P(|Z| ≤ 2) = 0.9545.
         assert!((ln_p_within(&p, band, 1).exp() - 0.682_689_492).abs() < 1e-8);
         assert!((ln_p_within(&p, band, 4).exp() - 0.954_499_736).abs() < 1e-8);
+    }
+
+    #[test]
+    fn the_optimistic_probability_moves_the_mean_by_at_most_two_sd() {
+        let band = Band {
+            target: 10.0,
+            half_width: 1.0,
+        };
+        let far = Prediction {
+            mean: 14.0,
+            sd: 1.0,
+            noise_sd: 0.5,
+        };
+        // Moved to 12: as likely as a prediction of 12 with the same uncertainty.
+        let moved = Prediction { mean: 12.0, ..far };
+        assert_eq!(
+            ln_p_within_optimistic(&far, band, 1),
+            ln_p_within(&moved, band, 1)
+        );
+        assert!(ln_p_within_optimistic(&far, band, 1) > ln_p_within(&far, band, 1));
+        // Within reach of the target: as if predicted on it; certain: unchanged.
+        let near = Prediction { mean: 11.5, ..far };
+        let on = Prediction { mean: 10.0, ..far };
+        assert_eq!(
+            ln_p_within_optimistic(&near, band, 1),
+            ln_p_within(&on, band, 1)
+        );
+        let certain = Prediction { sd: 0.0, ..far };
+        assert_eq!(
+            ln_p_within_optimistic(&certain, band, 1),
+            ln_p_within(&certain, band, 1)
+        );
     }
 }

@@ -3,12 +3,18 @@
 //! where every target is most likely met, until the best point is likely enough to be verified.
 //!
 //! - `design`: the maximin Latin hypercube start and the candidate points of a proposal;
-//! - `surrogate`: one Gaussian process per response and one for feasibility (the `friedrich`
-//!   crate; an anisotropic kernel, inputs in `[0, 1]`, outputs standardised, noise estimated);
+//! - `surrogate`: one Gaussian process per response, over the factors written into its own
+//!   experiment, and one for feasibility (the `friedrich` crate; an anisotropic kernel with
+//!   length-scales bounded by what the runs resolve, inputs in `[0, 1]`, outputs standardised,
+//!   noise estimated), and each factor's total-effect share of a response's variation;
 //! - `acquisition`: the probability that every target's verified mean lands within tolerance,
-//!   and the feasibility probability that multiplies it;
+//!   the feasibility probability that multiplies it, and the exploration term (the same
+//!   probability at an optimistic mean);
+//! - `edge`: whether the runs that met a target the surrogates put out of reach lie only at an
+//!   edge of the factor box;
 //! - `assess` (here): the round's assessment (best point, each target alone and all together,
-//!   conflicts), the batch by kriging believer, the region, the Pareto front;
+//!   conflicts, out of reach or met only at an edge), the batch by kriging believer with its
+//!   exploring points, the region, the Pareto front;
 //! - `wording`: the sentences of the decision log.
 //!
 //! Every experiment the targets need runs the same points; a round's batches are issued
@@ -19,6 +25,7 @@
 
 mod acquisition;
 mod design;
+mod edge;
 mod surrogate;
 mod wording;
 
@@ -38,8 +45,8 @@ use crate::error::CampaignError;
 use crate::request::{
     relative_error_pct, BayesianSettings, CandidateFactor, StageTemplate, Target,
 };
-use acquisition::{ln_p_feasible, ln_p_within, misfit, Band};
-use surrogate::{Prediction, Surrogate};
+use acquisition::{ln_p_feasible, ln_p_within, ln_p_within_optimistic, misfit, Band};
+use surrogate::{Prediction, Smoothness, Surrogate};
 
 /// Seed of the campaign's own draws when the request gives none.
 const DEFAULT_SEED: u64 = 0x5EED_BA7E;
@@ -146,24 +153,71 @@ pub struct Assessment {
     /// Pairs of targets (labels) that are each reachable but not together.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub conflicts: Vec<(String, String)>,
-    /// Targets (labels) that no candidate meets even alone with probability 0.5.
+    /// Targets (labels) that no candidate meets even alone with probability 0.5, and no run
+    /// met within its noise at an edge of the box.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub out_of_reach: Vec<String>,
+    /// Targets that no candidate meets alone with probability 0.5 but runs met within their
+    /// noise, only at an edge of the box: not out of reach.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub at_edge: Vec<EdgeReach>,
     /// Each response's factor influences.
     pub influences: Vec<Influence>,
 }
 
-/// How strongly each factor moves one response under its surrogate.
+/// One end of a factor's range.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Edge {
+    /// Factor name.
+    pub factor: String,
+    /// The high end (else the low one).
+    pub high: bool,
+    /// The end's value (natural units).
+    pub value: f64,
+}
+
+/// A target met only at the edge of the factor box: the runs that met it within their noise
+/// all lie at these edges, and the surrogates put it out of reach alone inside the box.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EdgeReach {
+    /// Target label.
+    pub response: String,
+    /// The edges (the factors whose trend points out of the box there, or every edge the runs
+    /// share where none does).
+    pub edges: Vec<Edge>,
+    /// Runs that met it: within the band or within two noise standard deviations of it.
+    pub runs: usize,
+    /// The estimated run noise that "within" used (response units).
+    pub noise_sd: f64,
+    /// The closest run's value.
+    pub closest: f64,
+    /// Its setting (natural units).
+    pub point: Vec<f64>,
+}
+
+/// How strongly each factor moves one response under its surrogate. A factor that the
+/// response's experiment is not given has no length-scale and no share: the surrogate does not
+/// range over it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Influence {
     /// Target label.
     pub response: String,
-    /// Fitted length-scale of each factor (fraction of its range; long = little influence).
-    pub length_scales: Vec<f64>,
-    /// `1/ℓ` of each factor as a share of their sum (sums to 1).
+    /// Fitted length-scale of each factor (fraction of its range; long = little influence);
+    /// `None` for a factor not written into the response's experiment.
+    pub length_scales: Vec<Option<f64>>,
+    /// Each factor's share of the variation of the surrogate's mean over the box: its
+    /// total-effect (Sobol) index, normalised to sum to 1 (every share 0 where the mean is
+    /// flat, and for a factor not written into the response's experiment).
     pub share: Vec<f64>,
     /// Estimated standard deviation of one run's noise, in response units.
     pub noise_sd: f64,
+    /// The shortest length-scale the response's data support (see `surrogate`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_length_scale: Option<f64>,
+    /// The part of one run's variance over the box that the factors explain, the rest being
+    /// run noise: `Var(mean) / (Var(mean) + noise_sd²)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub explained: Option<f64>,
 }
 
 /// One verification of the Bayesian strategy.
@@ -205,6 +259,10 @@ pub struct BayesianResult {
     /// Targets found out of reach in the factor box even alone (labels); empty when none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub out_of_reach: Vec<String>,
+    /// Targets met only at the edge of the factor box (a campaign that ended without a
+    /// verified calibration); empty when none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub at_edge: Vec<EdgeReach>,
 }
 
 /// The region of settings consistent with every measurement.
@@ -219,6 +277,10 @@ pub struct Region {
     pub extent: Vec<(f64, f64)>,
     /// Share of the box's uniform sample that belongs.
     pub fraction: f64,
+    /// The result's own probability under the same surrogates (its setting: the verified one,
+    /// or the best observed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at_result: Option<f64>,
 }
 
 /// A non-dominated observed point.
@@ -237,6 +299,14 @@ pub struct InfeasiblePoint {
     pub point: Vec<f64>,
     /// Why.
     pub reason: String,
+}
+
+/// A round's points (natural units): those aimed at every target together, then those that
+/// explore, each with the targets it explores for (empty: all of them).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Proposal {
+    pub exploit: Vec<Vec<f64>>,
+    pub explore: Vec<(Vec<String>, Vec<f64>)>,
 }
 
 /// How a Bayesian campaign ends without a verified calibration.
@@ -266,9 +336,29 @@ pub(crate) struct OutOfReach {
     pub observed: Option<(f64, f64)>,
 }
 
+/// One response's surrogate and the factors it ranges over.
+struct Response {
+    surrogate: Surrogate,
+    /// Indices (request order) of the factors written into the response's experiment.
+    columns: Vec<usize>,
+}
+
+impl Response {
+    /// The points restricted to the response's own factors.
+    fn project(&self, u: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        u.iter()
+            .map(|p| self.columns.iter().map(|&j| p[j]).collect())
+            .collect()
+    }
+
+    fn predict(&self, u: &[Vec<f64>]) -> Vec<Prediction> {
+        self.surrogate.predict(&self.project(u))
+    }
+}
+
 /// The fitted surrogates of one decision.
 struct Models {
-    responses: Vec<Surrogate>,
+    responses: Vec<Response>,
     feasibility: Option<Surrogate>,
     bands: Vec<Band>,
     replicates: u32,
@@ -282,17 +372,25 @@ struct Scores {
     feasible: Vec<f64>,
     /// Predicted mean per candidate, per target.
     means: Vec<Vec<f64>>,
+    /// `ln P(target within)` at the optimistic mean (the exploration term), per candidate,
+    /// per target.
+    optimistic: Vec<Vec<f64>>,
 }
 
 impl Scores {
     fn joint(&self, i: usize) -> f64 {
         self.each.iter().map(|e| e[i]).sum::<f64>() + self.feasible[i]
     }
+
+    /// The exploration term of candidate `i` for the targets `aims` (indices).
+    fn optimistic(&self, i: usize, aims: &[usize]) -> f64 {
+        aims.iter().map(|&t| self.optimistic[t][i]).sum::<f64>() + self.feasible[i]
+    }
 }
 
 impl Models {
     fn predict(&self, u: &[Vec<f64>]) -> (Vec<Vec<Prediction>>, Vec<f64>) {
-        let responses = self.responses.iter().map(|s| s.predict(u)).collect();
+        let responses = self.responses.iter().map(|r| r.predict(u)).collect();
         let feasible = match &self.feasibility {
             Some(f) => f.predict(u).iter().map(ln_p_feasible).collect(),
             None => vec![0.0; u.len()],
@@ -315,26 +413,48 @@ impl Models {
             .iter()
             .map(|ps| ps.iter().map(|p| p.mean).collect())
             .collect();
+        let optimistic = predictions
+            .iter()
+            .zip(&self.bands)
+            .map(|(ps, band)| {
+                ps.iter()
+                    .map(|p| ln_p_within_optimistic(p, *band, self.replicates))
+                    .collect()
+            })
+            .collect();
         Scores {
             each,
             feasible,
             means,
+            optimistic,
         }
     }
 
-    fn influences(&self, targets: &[Target]) -> Vec<Influence> {
+    /// Each response's influences over the `factors` of the request.
+    fn influences(&self, targets: &[Target], factors: usize) -> Vec<Influence> {
         self.responses
             .iter()
             .zip(targets)
-            .map(|(s, t)| {
-                let length_scales = s.length_scales();
-                let inverse: Vec<f64> = length_scales.iter().map(|l| 1.0 / l).collect();
-                let total: f64 = inverse.iter().sum();
+            .map(|(r, t)| {
+                let own_scales = r.surrogate.length_scales();
+                let effects = r.surrogate.total_effects();
+                let total: f64 = effects.total.iter().sum();
+                let mut length_scales = vec![None; factors];
+                let mut share = vec![0.0; factors];
+                for (k, &j) in r.columns.iter().enumerate() {
+                    length_scales[j] = Some(own_scales[k]);
+                    if total > 0.0 {
+                        share[j] = effects.total[k] / total;
+                    }
+                }
+                let noise_sd = r.surrogate.noise_sd();
                 Influence {
                     response: t.label.clone(),
                     length_scales,
-                    share: inverse.iter().map(|v| v / total).collect(),
-                    noise_sd: s.noise_sd(),
+                    share,
+                    noise_sd,
+                    min_length_scale: Some(r.surrogate.min_length_scale()),
+                    explained: Some(effects.variance / (effects.variance + noise_sd * noise_sd)),
                 }
             })
             .collect()
@@ -550,14 +670,26 @@ impl Campaign {
         let observations = &self.state().observations;
         let mut responses = Vec::new();
         for t in &targets {
+            // The surrogate ranges over the factors written into the target's experiment only:
+            // the others cannot move it.
+            let columns: Vec<usize> = (0..self.request.factors.len())
+                .filter(|&j| self.request.factors[j].acts_on(&t.experiment))
+                .collect();
             let (u, y): (Vec<Vec<f64>>, Vec<f64>) = observations
                 .iter()
-                .filter_map(|o| o.values.get(&t.label).map(|v| (self.to_unit(&o.point), *v)))
+                .filter_map(|o| {
+                    o.values.get(&t.label).map(|v| {
+                        let unit = self.to_unit(&o.point);
+                        (columns.iter().map(|&j| unit[j]).collect(), *v)
+                    })
+                })
                 .unzip();
             if y.len() < MIN_VALUES {
                 return Err(t.label.clone());
             }
-            responses.push(Surrogate::fit(&u, &y).ok_or_else(|| t.label.clone())?);
+            let surrogate =
+                Surrogate::fit(&u, &y, Smoothness::Response).ok_or_else(|| t.label.clone())?;
+            responses.push(Response { surrogate, columns });
         }
         let feasibility = if observations.iter().any(|o| o.failed.is_some()) {
             let (u, y): (Vec<Vec<f64>>, Vec<f64>) = observations
@@ -569,7 +701,7 @@ impl Campaign {
                     )
                 })
                 .unzip();
-            Surrogate::fit(&u, &y)
+            Surrogate::fit(&u, &y, Smoothness::Feasibility)
         } else {
             None
         };
@@ -737,13 +869,27 @@ impl Campaign {
             }
             return self.bayes_stop(BayesStop::BudgetSpent { simulations });
         }
-        let points = self.propose(models, candidates, scores, k);
+        let labels: Vec<String> = self
+            .request
+            .targets()
+            .into_iter()
+            .map(|t| t.label)
+            .collect();
+        let flagged: Vec<usize> = (0..labels.len())
+            .filter(|&t| {
+                assessment.out_of_reach.contains(&labels[t])
+                    || assessment.at_edge.iter().any(|e| e.response == labels[t])
+            })
+            .collect();
+        let proposal = self.propose(models, candidates, scores, k, &flagged);
         let round = self.state().round + 1;
         self.state_mut().round = round;
         self.decide(
             StageKind::Search,
-            wording::proposal(&points, &self.factor_names()),
+            wording::proposal(&proposal, &self.factor_names()),
         );
+        let mut points = proposal.exploit;
+        points.extend(proposal.explore.into_iter().map(|(_, p)| p));
         Ok(Step::Submit(self.issue_round(StageKind::Search, points, 1)))
     }
 
@@ -756,7 +902,8 @@ impl Campaign {
     }
 
     /// Candidates of this round (normalised): the box and the neighbourhoods of the best
-    /// observed points and of the surrogates' most promising ones.
+    /// observed points, of each target's closest run and of the surrogates' most promising
+    /// ones.
     fn candidates(&self, models: &Models, total: usize) -> Vec<Vec<f64>> {
         let d = self.request.factors.len();
         let round = self.state().round;
@@ -773,6 +920,21 @@ impl Campaign {
             .collect();
         observed.sort_by(|a, b| a.1.total_cmp(&b.1));
         let mut centres: Vec<Vec<f64>> = observed.into_iter().take(4).map(|o| o.0).collect();
+        // Each target's own closest run (where a target met only at an edge was met).
+        for (t, band) in self.request.targets().iter().zip(&bands) {
+            let closest = self
+                .state()
+                .observations
+                .iter()
+                .filter_map(|o| o.values.get(&t.label).map(|v| (o, (v - band.target).abs())))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            if let Some((o, _)) = closest {
+                let u = self.to_unit(&o.point);
+                if !centres.contains(&u) {
+                    centres.push(u);
+                }
+            }
+        }
         // The most promising points of a first, global look.
         let global = design::latin_hypercube(total / 2, d, &mut rng);
         let scores = models.score(&global);
@@ -832,12 +994,17 @@ impl Campaign {
                 }
             }
         }
-        let out_of_reach = targets
-            .iter()
-            .zip(&alone)
-            .filter(|(_, a)| **a < REACHABLE_ALONE)
-            .map(|(t, _)| t.label.clone())
-            .collect();
+        let mut out_of_reach = Vec::new();
+        let mut at_edge = Vec::new();
+        for (i, t) in targets.iter().enumerate() {
+            if alone[i] >= REACHABLE_ALONE {
+                continue;
+            }
+            match self.edge_reach(models, i, t) {
+                Some(reach) => at_edge.push(reach),
+                None => out_of_reach.push(t.label.clone()),
+            }
+        }
         Assessment {
             round: self.state().round,
             best: self.to_natural(&candidates[best]),
@@ -846,23 +1013,78 @@ impl Campaign {
             alone,
             conflicts,
             out_of_reach,
-            influences: models.influences(&targets),
+            at_edge,
+            influences: models.influences(&targets, self.request.factors.len()),
         }
     }
 
+    /// Target `i` (`t`) met within the runs' noise only at an edge of the box, or `None`.
+    fn edge_reach(&self, models: &Models, i: usize, t: &Target) -> Option<EdgeReach> {
+        let observed: Vec<(&Observation, f64)> = self
+            .state()
+            .observations
+            .iter()
+            .filter_map(|o| o.values.get(&t.label).map(|v| (o, *v)))
+            .collect();
+        let runs: Vec<(Vec<f64>, f64)> = observed
+            .iter()
+            .map(|(o, v)| (self.to_unit(&o.point), *v))
+            .collect();
+        let response = &models.responses[i];
+        let found = edge::at_edge(&runs, models.bands[i], response)?;
+        let factors = &self.request.factors;
+        Some(EdgeReach {
+            response: t.label.clone(),
+            edges: found
+                .edges
+                .iter()
+                .map(|e| Edge {
+                    factor: factors[e.factor].name.clone(),
+                    high: e.high,
+                    value: if e.high {
+                        factors[e.factor].high
+                    } else {
+                        factors[e.factor].low
+                    },
+                })
+                .collect(),
+            runs: found.runs,
+            noise_sd: response.surrogate.noise_sd(),
+            closest: observed[found.closest].1,
+            point: observed[found.closest].0.point.clone(),
+        })
+    }
+
     /// `k` points by kriging believer: the best candidate, then the surrogates believe their own
-    /// prediction there and the next is chosen, away from the ones already taken.
+    /// prediction there and the next is chosen, away from the ones already taken. The last
+    /// ones explore: one for each target in `flagged` (out of reach alone, or met only at an
+    /// edge), or else one for all targets together when `k` is 2 or more, each where the
+    /// exploration term (the probability at an optimistic mean) is highest.
     fn propose(
         &self,
         mut models: Models,
         candidates: Vec<Vec<f64>>,
         mut scores: Scores,
         k: usize,
-    ) -> Vec<Vec<f64>> {
+        flagged: &[usize],
+    ) -> Proposal {
         let d = self.request.factors.len();
+        let targets = self.request.targets();
         let spacing = 0.05 * (d as f64).sqrt();
+        let aims: Vec<Vec<usize>> = if !flagged.is_empty() {
+            flagged.iter().take(k).map(|&t| vec![t]).collect()
+        } else if k >= 2 {
+            vec![(0..targets.len()).collect()]
+        } else {
+            Vec::new()
+        };
         let mut chosen: Vec<Vec<f64>> = Vec::new();
-        for _ in 0..k {
+        let mut proposal = Proposal {
+            exploit: Vec::new(),
+            explore: Vec::new(),
+        };
+        for slot in 0..k {
+            let aim = slot.checked_sub(k - aims.len()).map(|e| &aims[e]);
             let pick = argmax((0..candidates.len()).map(|i| {
                 if chosen
                     .iter()
@@ -870,18 +1092,34 @@ impl Campaign {
                 {
                     f64::NEG_INFINITY
                 } else {
-                    scores.joint(i)
+                    match aim {
+                        None => scores.joint(i),
+                        Some(aim) => scores.optimistic(i, aim),
+                    }
                 }
             }));
             let Some((i, _)) = pick else { break };
             let u = candidates[i].clone();
-            for (s, means) in models.responses.iter_mut().zip(&scores.means) {
-                s.believe(&u, means[i]);
+            for (r, means) in models.responses.iter_mut().zip(&scores.means) {
+                let own = r.project(std::slice::from_ref(&u)).remove(0);
+                r.surrogate.believe(&own, means[i]);
+            }
+            let natural = self.to_natural(&u);
+            match aim {
+                None => proposal.exploit.push(natural),
+                Some(aim) => proposal.explore.push((
+                    if aim.len() == targets.len() && flagged.is_empty() {
+                        Vec::new()
+                    } else {
+                        aim.iter().map(|&t| targets[t].label.clone()).collect()
+                    },
+                    natural,
+                )),
             }
             chosen.push(u);
             scores = models.score(&candidates);
         }
-        chosen.iter().map(|u| self.to_natural(u)).collect()
+        proposal
     }
 
     fn issue_verification(&mut self, point: Vec<f64>, last_chance: bool) -> Step {
@@ -1040,7 +1278,13 @@ impl Campaign {
     }
 
     /// The region, influences, Pareto front and failures, from surrogates fitted on all data.
-    fn bayes_result(&self, conflict: Vec<String>, out_of_reach: Vec<String>) -> BayesianResult {
+    fn bayes_result(
+        &self,
+        point: &[f64],
+        conflict: Vec<String>,
+        out_of_reach: Vec<String>,
+        at_edge: Vec<EdgeReach>,
+    ) -> BayesianResult {
         let targets = self.request.targets();
         let state = self.state();
         let d = self.request.factors.len();
@@ -1069,14 +1313,16 @@ impl Campaign {
                         .collect()
                 };
                 let step = members.len().div_ceil(REGION_POINTS).max(1);
+                let at_result = models.score(&[self.to_unit(point)]).joint(0).exp();
                 (
                     Region {
                         threshold,
                         points: members.into_iter().step_by(step).collect(),
                         extent,
                         fraction,
+                        at_result: Some(at_result),
                     },
-                    models.influences(&targets),
+                    models.influences(&targets, self.request.factors.len()),
                 )
             }
             Err(_) => (
@@ -1085,6 +1331,7 @@ impl Campaign {
                     points: Vec::new(),
                     extent: Vec::new(),
                     fraction: 0.0,
+                    at_result: None,
                 },
                 Vec::new(),
             ),
@@ -1107,6 +1354,7 @@ impl Campaign {
                 .collect(),
             conflict,
             out_of_reach,
+            at_edge,
         }
     }
 
@@ -1187,6 +1435,11 @@ impl Campaign {
                 (point, checks)
             }
         };
+        // A target met only at an edge is reported with a result no verification accepted.
+        let at_edge = match (verified, &state.assessment) {
+            (None, Some(a)) => a.at_edge.clone(),
+            _ => Vec::new(),
+        };
         let first: &ResponseCheck = &checks[0];
         Summary {
             name: self.request.name.clone(),
@@ -1216,7 +1469,12 @@ impl Campaign {
                 Vec::new()
             },
             simulations: Some(state.simulations),
-            bayesian: Some(Box::new(self.bayes_result(conflict, out_of_reach))),
+            bayesian: Some(Box::new(self.bayes_result(
+                &point,
+                conflict,
+                out_of_reach,
+                at_edge,
+            ))),
         }
     }
 

@@ -1,6 +1,6 @@
 //! The Bayesian strategy's sentences: every decision and stop of `bayes` in plain words.
 
-use super::{Assessment, BayesStop, BayesVerification, OutOfReach};
+use super::{Assessment, BayesStop, BayesVerification, EdgeReach, OutOfReach, Proposal};
 use crate::campaign::wording::setting;
 use crate::campaign::{fmt_num, Summary};
 use crate::request::{BayesianSettings, Target};
@@ -80,6 +80,10 @@ pub(crate) fn assessment(a: &Assessment, targets: &[Target], names: &[String]) -
             a.out_of_reach.join(", ")
         ));
     }
+    if !a.at_edge.is_empty() {
+        text.push(' ');
+        text.push_str(&at_edges(&a.at_edge));
+    }
     if !a.conflicts.is_empty() {
         text.push_str(&format!(
             " Each is reachable, not together: {}.",
@@ -94,15 +98,74 @@ pub(crate) fn assessment(a: &Assessment, targets: &[Target], names: &[String]) -
 }
 
 /// The next round's points.
-pub(crate) fn proposal(points: &[Vec<f64>], names: &[String]) -> String {
-    format!(
-        "Next round: {} point(s) by kriging believer: {}.",
-        points.len(),
+pub(crate) fn proposal(p: &Proposal, names: &[String]) -> String {
+    let list = |points: &[&Vec<f64>]| {
         points
             .iter()
             .map(|p| format!("({})", setting(names, p)))
             .collect::<Vec<_>>()
             .join(", ")
+    };
+    let total = p.exploit.len() + p.explore.len();
+    let mut parts = Vec::new();
+    if !p.exploit.is_empty() {
+        let exploit: Vec<&Vec<f64>> = p.exploit.iter().collect();
+        parts.push(format!(
+            "{} where every target is most likely met, by kriging believer: {}",
+            exploit.len(),
+            list(&exploit)
+        ));
+    }
+    for (aims, point) in &p.explore {
+        parts.push(if aims.is_empty() {
+            format!(
+                "1 exploring where the surrogates know least, at the highest probability within \
+                 two standard deviations of their means: {}",
+                list(&[point])
+            )
+        } else {
+            format!(
+                "1 exploring where {} could still be met, at its highest probability within two \
+                 standard deviations of its surrogate's mean: {}",
+                aims.join(" and "),
+                list(&[point])
+            )
+        });
+    }
+    format!("Next round: {total} point(s), {}.", parts.join("; "))
+}
+
+/// A target met only at the edge of the factor box: the edges, and the runs that met it.
+pub(crate) fn at_edge(e: &EdgeReach) -> String {
+    let edges: Vec<String> = e
+        .edges
+        .iter()
+        .map(|x| {
+            format!(
+                "{} at its {} edge ({})",
+                x.factor,
+                if x.high { "high" } else { "low" },
+                fmt_num(x.value)
+            )
+        })
+        .collect();
+    format!(
+        "{} ({}; {} run(s) within its band or two noise standard deviations ({} each) of it, \
+         the closest {})",
+        e.response,
+        edges.join(", "),
+        e.runs,
+        fmt_num(e.noise_sd),
+        fmt_num(e.closest)
+    )
+}
+
+/// The sentence for the targets met only at the edge of the factor box.
+fn at_edges(reaches: &[EdgeReach]) -> String {
+    format!(
+        "Met only at the edge of the factor box, not out of reach: {}; a wider range beyond \
+         that edge may hold it.",
+        reaches.iter().map(at_edge).collect::<Vec<_>>().join("; ")
     )
 }
 
@@ -175,7 +238,11 @@ pub(crate) fn stop(stop: &BayesStop, summary: &Summary, names: &[String]) -> Str
             .collect::<Vec<_>>()
             .join(", ")
     };
-    match stop {
+    let edges = match summary.bayesian.as_deref() {
+        Some(b) if !b.at_edge.is_empty() => format!(" {}", at_edges(&b.at_edge)),
+        _ => String::new(),
+    };
+    let reason = match stop {
         BayesStop::Conflict { pairs } => format!(
             "the targets cannot be met together in the factor box: {}. Each is reachable alone \
              under the surrogates, together they are not. Best compromise observed: ({}) with \
@@ -211,7 +278,8 @@ pub(crate) fn stop(stop: &BayesStop, summary: &Summary, names: &[String]) -> Str
                                         and the budget leaves no room for more: check the \
                                         experiments and the factor ranges"
             .to_owned(),
-    }
+    };
+    reason + &edges
 }
 
 /// One target out of reach: where its band lies against what was observed.
