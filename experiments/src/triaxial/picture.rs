@@ -177,15 +177,15 @@ pub fn curves_svg(result: &TriaxialResult) -> String {
     s
 }
 
-/// The grains of the last stage at the end of loading seen from the side (x-z), nearer grains
-/// (larger y) darker, over the specimen's outline at the start of loading.
+/// The grains of the last stage at the end of loading seen from the side (x-z): the slice one
+/// mean grain diameter thick through the specimen's middle (y), so the packing inside shows.
 pub fn specimen_svg(result: &TriaxialResult, grains: &[([f64; 3], f64)]) -> String {
     let (w, h) = (420.0, 640.0);
     let mut s = header(w, h);
     let last = result.stages.last();
     let text = match last {
         Some(st) => format!(
-            "specimen at εa = {:.0} %, σ3 = {:.1} kPa",
+            "specimen at εa = {:.0} %, σ3 = {:.1} kPa: the middle slice",
             100.0 * st.series.last().map_or(0.0, |p| p.axial_strain),
             st.confining_kpa
         ),
@@ -203,22 +203,26 @@ pub fn specimen_svg(result: &TriaxialResult, grains: &[([f64; 3], f64)]) -> Stri
             hi[a] = hi[a].max(p[a] + r);
         }
     }
+    let mean_r = grains.iter().map(|g| g.1).sum::<f64>() / grains.len() as f64;
+    let y_mid = 0.5 * (lo[1] + hi[1]);
     let scale = ((w - 60.0) / (hi[0] - lo[0])).min((h - 90.0) / (hi[2] - lo[2]));
     let (cx, cy) = (0.5 * w, 50.0 + 0.5 * (h - 70.0));
     let mid = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[2] + hi[2])];
-    let mut order: Vec<usize> = (0..grains.len()).collect();
-    order.sort_by(|&a, &b| grains[a].0[1].total_cmp(&grains[b].0[1]));
-    for k in order {
-        let (p, r) = grains[k];
-        let depth = (p[1] - lo[1]) / (hi[1] - lo[1]).max(1e-12);
-        let grey = (200.0 - 120.0 * depth) as u8;
+    let _ = writeln!(
+        s,
+        "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"#f4f1ea\" stroke=\"#555\"/>",
+        cx - 0.5 * (hi[0] - lo[0]) * scale,
+        cy - 0.5 * (hi[2] - lo[2]) * scale,
+        (hi[0] - lo[0]) * scale,
+        (hi[2] - lo[2]) * scale
+    );
+    for (p, r) in grains.iter().filter(|g| (g.0[1] - y_mid).abs() < mean_r) {
         let _ = writeln!(
             s,
-            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"{:.1}\" fill=\"rgb({grey},{grey},{})\" stroke=\"#333\" stroke-width=\"0.3\"/>",
+            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"{:.1}\" fill=\"#c9a66b\" stroke=\"#5a4630\" stroke-width=\"0.5\"/>",
             cx + (p[0] - mid[0]) * scale,
             cy - (p[2] - mid[1]) * scale,
-            r * scale,
-            grey.saturating_add(30)
+            r * scale
         );
     }
     if let Some(st) = last {
