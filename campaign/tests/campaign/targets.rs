@@ -397,6 +397,23 @@ fn every_example_campaign_file_is_a_valid_request() {
         // `begin`: a Bayesian example with several experiments issues a batch per experiment.
         Campaign::begin(request.clone()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         files += 1;
+        if path.ends_with("paper_scale_gpu.json") {
+            // The paper-scale chain, every experiment on the GPU (issue 49).
+            assert_eq!(request.backend, Some(BackendKind::Gpu));
+            let cpu: CampaignRequest = serde_json::from_str(
+                &std::fs::read_to_string(path.with_file_name("paper_scale.json")).unwrap(),
+            )
+            .unwrap();
+            assert_eq!(cpu.backend, None);
+            assert_eq!(
+                CampaignRequest {
+                    name: cpu.name.clone(),
+                    backend: None,
+                    ..request.clone()
+                },
+                cpu
+            );
+        }
         if path.ends_with("paper_three_targets.json") {
             let labels: Vec<String> = request.targets().into_iter().map(|t| t.label).collect();
             assert_eq!(
