@@ -107,10 +107,12 @@ pub struct ExperimentTemplate {
     /// Experiment type understood by the workers: `aor`, `drill`, `shear`, and the test aids
     /// `table_lookup` and `formula`.
     pub kind: String,
-    /// The engine the runs need: `cpu` (the default) or `gpu` (`aor`, `drill` and `shear` run on it).
-    /// GPU jobs go only to workers that opened a GPU adapter (`repose worker --gpu`).
-    #[serde(default, skip_serializing_if = "BackendKind::is_cpu")]
-    pub backend: BackendKind,
+    /// The engine the runs need: `cpu` or `gpu` (`aor`, `drill` and `shear` run on it); none:
+    /// the CPU in a batch, the campaign's `backend` in a campaign (so an explicit `cpu` is
+    /// told from none). GPU jobs go only to workers that opened a GPU adapter
+    /// (`repose worker --gpu`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backend: Option<BackendKind>,
     /// Named starting point for the spec (e.g. `fast` or `default` for `aor`); `spec` is merged
     /// over it, so it need only give what differs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -119,6 +121,13 @@ pub struct ExperimentTemplate {
     /// are written into the completed spec at their paths.
     #[serde(default = "empty_object")]
     pub spec: Value,
+}
+
+impl ExperimentTemplate {
+    /// The engine the runs need: the template's own, else the CPU.
+    pub fn backend(&self) -> BackendKind {
+        self.backend.unwrap_or_default()
+    }
 }
 
 fn empty_object() -> Value {
@@ -320,6 +329,30 @@ pub struct BatchSummary {
     /// `None` for batches submitted before the server had access control.
     #[serde(default)]
     pub owner: Option<String>,
+    /// The engine its runs need (`experiment.backend`).
+    #[serde(default)]
+    pub backend: BackendKind,
+    /// Set while the batch's GPU jobs wait for a GPU worker and none was seen lately.
+    #[serde(default)]
+    pub gpu_wait: Option<GpuWait>,
+}
+
+/// Jobs that need a GPU and no worker with one to run them: no worker that registered a GPU
+/// adapter was seen (registered, claimed or heartbeated) within the last `minutes`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GpuWait {
+    /// The window looked at, minutes.
+    pub minutes: u32,
+}
+
+impl std::fmt::Display for GpuWait {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "waiting for a GPU worker: none registered in the last {} min",
+            self.minutes
+        )
+    }
 }
 
 /// Detailed progress of one batch.
@@ -399,9 +432,18 @@ pub struct WorkerView {
     pub threads: u32,
     /// Worker software version.
     pub version: String,
-    /// The GPU adapter it opened (it claims `gpu` jobs too); none: CPU jobs only.
+    /// The GPU adapter it opened (its GPU slots claim `gpu` jobs); none: CPU jobs only.
     #[serde(default)]
     pub gpu: Option<String>,
+    /// The GPU's memory, bytes, as the worker reported it (none: not known).
+    #[serde(default)]
+    pub gpu_memory_bytes: Option<u64>,
+    /// Runs it shares its GPU among at once (`repose worker --gpu-slots`).
+    #[serde(default)]
+    pub gpu_slots: Option<u32>,
+    /// Jobs of `gpu` batches it holds a lease on now (runs in flight on its GPU).
+    #[serde(default)]
+    pub gpu_running_jobs: u64,
     /// First registration, Unix milliseconds.
     pub registered_at_ms: i64,
     /// Last registration, claim or heartbeat, Unix milliseconds.
@@ -463,6 +505,12 @@ pub struct WorkerRegistration {
     /// claim jobs of `gpu` batches. None: it runs CPU jobs only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gpu: Option<String>,
+    /// The GPU's memory, bytes, where the worker knows it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gpu_memory_bytes: Option<u64>,
+    /// Runs the worker shares its GPU among at once (its GPU slots).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gpu_slots: Option<u32>,
 }
 
 /// Reply to a registration.
@@ -482,6 +530,10 @@ pub struct ClaimRequest {
     /// Long-poll duration; 0 answers at once.
     #[serde(default)]
     pub wait_s: f64,
+    /// The engine of the slot asking: `gpu` leases only jobs of `gpu` batches (a worker that
+    /// registered a GPU adapter), `cpu` only CPU jobs; none: any job the worker can run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backend: Option<BackendKind>,
 }
 
 /// A leased job: everything a worker needs to run one simulation.
@@ -615,6 +667,9 @@ pub struct CampaignSummary {
     pub created_at_ms: i64,
     /// Last change, Unix milliseconds.
     pub updated_at_ms: i64,
+    /// Set while one of its batches waits for a GPU worker and none was seen lately.
+    #[serde(default)]
+    pub gpu_wait: Option<GpuWait>,
 }
 
 /// A batch a campaign issued, with its progress.
@@ -753,16 +808,21 @@ mod tests {
 
     #[test]
     fn a_template_runs_on_the_cpu_unless_it_names_the_gpu() {
-        let cpu: ExperimentTemplate = serde_json::from_value(json!({"kind": "aor"})).unwrap();
-        assert_eq!(cpu.backend, BackendKind::Cpu);
-        // A CPU template serialises as before the field existed (stored requests unchanged).
+        let none: ExperimentTemplate = serde_json::from_value(json!({"kind": "aor"})).unwrap();
+        assert_eq!((none.backend, none.backend()), (None, BackendKind::Cpu));
+        let cpu: ExperimentTemplate =
+            serde_json::from_value(json!({"kind": "aor", "backend": "cpu"})).unwrap();
+        assert_eq!(cpu.backend, Some(BackendKind::Cpu));
+        assert_eq!(serde_json::to_value(&cpu).unwrap()["backend"], "cpu");
+        // A template without one serialises as before the field existed (stored requests
+        // unchanged); one that names the CPU keeps saying so.
         assert_eq!(
-            serde_json::to_value(&cpu).unwrap(),
+            serde_json::to_value(&none).unwrap(),
             json!({"kind": "aor", "spec": {}})
         );
         let gpu: ExperimentTemplate =
             serde_json::from_value(json!({"kind": "aor", "backend": "gpu"})).unwrap();
-        assert_eq!(gpu.backend, BackendKind::Gpu);
+        assert_eq!(gpu.backend(), BackendKind::Gpu);
         assert_eq!(serde_json::to_value(&gpu).unwrap()["backend"], "gpu");
         let err =
             serde_json::from_value::<ExperimentTemplate>(json!({"kind": "aor", "backend": "tpu"}))

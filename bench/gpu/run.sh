@@ -8,6 +8,11 @@
 # that no longer fits BUDGET_S is skipped and says so.
 #
 #   REPOSE=path/to/repose BUDGET_S=560 bash bench/gpu/run.sh
+#   REPOSE=path/to/repose BUDGET_S=560 GOALS=1 CHAIN=0 bash bench/gpu/run.sh       # issue 49, goal 1
+#   REPOSE=path/to/repose BUDGET_S=560 GOALS=1 SLOTS_LIST= bash bench/gpu/run.sh   # issue 49, goal 2
+#
+# (The two goals together need about 5 + 8 minutes: two calls.) Their parts run one `repose up`
+# at a time, whose one worker shares the GPU among its GPU slots in one process.
 #
 # REPOSE: a release build (strip it to carry it: CARGO_PROFILE_RELEASE_DEBUG=0
 # CARGO_PROFILE_RELEASE_STRIP=symbols cargo build --release -p repose). TESTS: a test binary of
@@ -24,19 +29,42 @@
 # comparison of two builds).
 # BUDGET_S: the seconds the whole script may take. Every figure is printed; the runs'
 # result.json files are under $WORK (default /tmp/repose-gpu).
+#
+# Issue 49's goals, one GPU worker (`repose up --workers 1 --gpu-slots N`) through the job
+# service; GOALS=1 runs these two parts alone (every other part off unless set):
+# SLOTS_LIST (GOALS=1: "1 4 8"): for each N, SLOT_FUNNELS (8) `paper-scale` funnels on the GPU
+# (one batch, the same seeds every time) on N GPU slots sharing the GPU; prints each N's wall
+# time, funnels per hour and its throughput against the first N of the list (the goal: at
+# least 4x one slot's). SLOT_PRESET and SLOT_SPEC (a JSON object merged over the preset) change
+# the funnel (a dry run: SLOT_PRESET=fast and a small SLOT_SPEC on lavapipe). CHAIN (GOALS=1: 1):
+# the paper's one-target chain at `paper-scale` on the GPU (CHAIN_CAMPAIGN, default
+# examples/campaigns/paper_scale_gpu.json of this checkout) on CHAIN_SLOTS (8) GPU slots,
+# stopped at CHAIN_S (480, the goal: verified within 8 minutes) or what is left of the budget;
+# prints its time, stage, runs and whether it ended verified.
 set -u
 REPOSE=${REPOSE:-repose}
-SEEDS=${SEEDS:-12}
+GOALS=${GOALS:-0}
+# default_of WITH_GOALS OTHERWISE: a part's default with and without GOALS=1.
+default_of() { if [ "$GOALS" = 1 ]; then echo "$1"; else echo "$2"; fi; }
+SEEDS=${SEEDS:-$(default_of 0 12)}
 CPU_SEEDS=${CPU_SEEDS:-1}
-BENCH=${BENCH:-1}
+BENCH=${BENCH:-$(default_of 0 1)}
 TESTS=${TESTS:-}
-DRILL=${DRILL:-1}
-SHEAR=${SHEAR:-1}
+DRILL=${DRILL:-$(default_of 0 1)}
+SHEAR=${SHEAR:-$(default_of 0 1)}
 PROFILE=${PROFILE:-0}
 PROFILE_S=${PROFILE_S:-30}
 PROFILE_PRESETS=${PROFILE_PRESETS:-fast paper-scale fine}
-PAPER=${PAPER:-1}
-FINE_S=${FINE_S:-240}
+PAPER=${PAPER:-$(default_of 0 1)}
+FINE_S=${FINE_S:-$(default_of 0 240)}
+SLOTS_LIST=${SLOTS_LIST:-$(default_of "1 4 8" "")}
+SLOT_FUNNELS=${SLOT_FUNNELS:-8}
+SLOT_PRESET=${SLOT_PRESET:-paper-scale}
+SLOT_SPEC=${SLOT_SPEC:-"{}"}
+CHAIN=${CHAIN:-$(default_of 1 0)}
+CHAIN_S=${CHAIN_S:-480}
+CHAIN_SLOTS=${CHAIN_SLOTS:-8}
+CHAIN_CAMPAIGN=${CHAIN_CAMPAIGN:-$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)/examples/campaigns/paper_scale_gpu.json}
 BASE=${BASE:-}
 BUDGET_S=${BUDGET_S:-560}
 WORK=${WORK:-/tmp/repose-gpu}
@@ -70,6 +98,93 @@ if [ -n "$TESTS" ]; then
     stamp "the GPU crate's tests on this adapter"
     REPOSE_REQUIRE_GPU=1 timeout -s KILL 120 "$TESTS" --test-threads 1 --nocapture 2>&1 |
         grep -E "^test |test result|panicked|GPU:|theory|CPU law|CPU |error" | head -80
+fi
+if [ -n "$SLOTS_LIST" ]; then
+    # Issue 49, goal 1: the throughput of N funnels on N GPU slots of one worker.
+    python3 - "$SLOT_FUNNELS" "$SLOT_PRESET" "$SLOT_SPEC" >"$WORK/funnels.json" <<'PY'
+import json, sys
+funnels, preset, spec = int(sys.argv[1]), sys.argv[2], json.loads(sys.argv[3])
+print(json.dumps({
+    "name": f"{funnels} {preset} funnels on the GPU",
+    "experiment": {"kind": "aor", "backend": "gpu", "preset": preset, "spec": spec},
+    "factors": [{"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.5, "high": 0.6}],
+    "design": {"type": "explicit", "points": [[0.55]] * funnels},
+    "response": "angle_deg", "model": "none", "seed": 49,
+}))
+PY
+    first_rate=""
+    for n in $SLOTS_LIST; do
+        # One slot takes about 25 s a paper-scale funnel (BENCHMARKS: 22.9 s alone).
+        need=$(( 30 + 25 * SLOT_FUNNELS / n ))
+        fits "$need" "$SLOT_FUNNELS funnels on $n GPU slot(s)" || continue
+        stamp "$SLOT_FUNNELS $SLOT_PRESET funnels on the GPU, one worker with $n GPU slot(s)"
+        rm -f "$WORK/slots-$n.db"*
+        left=$(( BUDGET_S - $(elapsed) ))
+        started=$(date +%s.%N)
+        timeout -k 60 -s TERM "$left" "$REPOSE" up --workers 1 --gpu-slots "$n" --listen 127.0.0.1:0 \
+            --db "$WORK/slots-$n.db" --submit "$WORK/funnels.json" --exit-when-done \
+            >"$WORK/slots-$n.log" 2>&1
+        status=$?
+        wall=$(python3 -c "print(round($(date +%s.%N) - $started, 1))")
+        rate=$(python3 - "$WORK/slots-$n.db" "$n" "$wall" "$status" "$first_rate" <<'PY'
+import json, sqlite3, sys
+db, n, wall, status, first = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), sys.argv[4], sys.argv[5]
+rows = sqlite3.connect(db).execute(
+    "SELECT r.wall_time_s, r.metrics, j.state, j.attempts FROM runs r JOIN jobs j ON j.run_id = r.id"
+).fetchall()
+done = [r for r in rows if r[2] == "completed"]
+walls = sorted(round(r[0], 1) for r in done)
+angles = [round(json.loads(r[1])["angle_deg"], 2) for r in done if r[1]]
+rate = len(done) * 3600 / wall
+line = (f"{n} GPU slot(s): {len(done)} of {len(rows)} funnels in {wall} s (repose up exit {status}), "
+        f"{rate:.0f} funnels/h; each run {walls[0] if walls else '-'}-{walls[-1] if walls else '-'} s; "
+        f"runs retried {sum(r[3] > 1 for r in rows)}; angles {angles}")
+if first:
+    ratio = rate / float(first)
+    line += f"; {ratio:.2f}x the first's throughput ({'the 4x goal met' if ratio >= 4 else 'below the 4x goal'})"
+print(line, file=sys.stderr)
+print(f"{rate:.6f}")
+PY
+)
+        [ -z "$first_rate" ] && first_rate=$rate
+        grep -E "GPU:|error|panicked" "$WORK/slots-$n.log" | grep -v XDG_RUNTIME_DIR | head -5
+    done
+fi
+if [ "$CHAIN" = 1 ]; then
+    # Issue 49, goal 2: the paper's one-target chain at paper-scale on one GPU worker.
+    # Stopped with SIGTERM at the limit: its runs are released (up to a minute on a slow
+    # device), and the database then says how far it got.
+    left=$(( BUDGET_S - $(elapsed) - 60 ))
+    limit=$(( left < CHAIN_S ? left : CHAIN_S ))
+    if [ "$limit" -gt 60 ]; then
+        stamp "the one-target chain ($(basename "$CHAIN_CAMPAIGN")), one worker with $CHAIN_SLOTS GPU slots, stopped at $limit s"
+        rm -f "$WORK/chain.db"*
+        started=$(date +%s.%N)
+        timeout -k 60 -s TERM "$limit" "$REPOSE" up --workers 1 --gpu-slots "$CHAIN_SLOTS" \
+            --listen 127.0.0.1:0 --db "$WORK/chain.db" --campaign "$CHAIN_CAMPAIGN" --exit-when-done \
+            >"$WORK/chain.log" 2>&1
+        status=$?
+        wall=$(python3 -c "print(round($(date +%s.%N) - $started, 1))")
+        grep -E "^\[|campaign|GPU:|error" "$WORK/chain.log" | grep -v XDG_RUNTIME_DIR | tail -25
+        python3 - "$WORK/chain.db" "$wall" "$status" <<'PY'
+import json, sqlite3, sys
+db, wall, status = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+con = sqlite3.connect(db)
+row = con.execute("SELECT status, stage, state FROM campaigns").fetchone()
+if row is None:
+    sys.exit(f"chain: no campaign in {db} (repose up exit {status})")
+jobs = dict(con.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall())
+took, count = con.execute("SELECT SUM(wall_time_s), COUNT(wall_time_s) FROM runs").fetchone()
+summary = json.loads(row[2]).get("summary") or {}
+verified = summary.get("within_tolerance")
+print(f"chain: {row[0]} at stage {row[1]} after {wall} s (repose up exit {status}); jobs {jobs}; "
+      f"{count} runs took {took or 0:.0f} s of run time; verified {verified} "
+      f"(mean {summary.get('verified_mean')}, {summary.get('verified_relative_error_pct')} %); "
+      f"the goal, verified within 480 s: {'met' if verified and wall <= 480 else 'not met'}")
+PY
+    else
+        stamp "skipped: the one-target chain ($left s left)"
+    fi
 fi
 if [ "$PROFILE" = 1 ]; then
     for preset in $PROFILE_PRESETS; do

@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use repose_api::{CcdVariantName, DesignRequest, ExperimentTemplate, FactorSpec};
+use repose_api::{BackendKind, CcdVariantName, DesignRequest, ExperimentTemplate, FactorSpec};
 use serde::{Deserialize, Serialize};
 
 use crate::error::CampaignError;
@@ -79,6 +79,10 @@ pub struct CampaignRequest {
     /// another name for it.
     #[serde(default, alias = "validation")]
     pub drilling: Option<DrillingValidation>,
+    /// The engine of every experiment that names none of its own (`cpu` or `gpu`), the
+    /// drilling validation's included; none: those run on the CPU.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backend: Option<BackendKind>,
 }
 
 /// The campaign strategy, chosen in the campaign file by `type`.
@@ -562,6 +566,12 @@ impl CampaignRequest {
             .get(key)
             .cloned()
             .expect("validated: every target's experiment is listed")
+    }
+
+    /// `template` with the campaign's `backend` when it names none of its own.
+    pub fn with_backend(&self, mut template: ExperimentTemplate) -> ExperimentTemplate {
+        template.backend = template.backend.or(self.backend);
+        template
     }
 
     /// Checks what the statistics cannot check later, naming the offending field.

@@ -9,22 +9,89 @@ pub enum Backend {
     Gpu,
 }
 
-/// The GPU a worker (`repose worker --gpu`, `repose up --gpu`) runs `gpu` jobs on, opened once
-/// at start and shared by its slots; `None` without the flag. No adapter is an error naming
-/// the problem: a worker asked for a GPU never runs as a CPU-only one.
-pub fn open_worker_gpu(
+/// A worker's GPU as `repose worker` and `repose up` are asked for it: `--gpu`, `--gpu-slots`
+/// (which implies `--gpu`) and `--gpu-memory`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorkerGpu {
+    /// GPU jobs run at once, sharing the adapter.
+    pub slots: usize,
+    /// The device memory the runs may hold together, bytes; none: the engine's default (90 %
+    /// of the device's, where known).
+    pub memory_bytes: Option<u64>,
+}
+
+/// The largest `--gpu-memory`, GiB (beyond any device).
+const MAX_GPU_MEMORY_GIB: f64 = 1_048_576.0;
+
+/// `--gpu`, `--gpu-slots N` and `--gpu-memory GIB`, checked: none without a GPU.
+pub fn worker_gpu(
     gpu: bool,
-) -> anyhow::Result<Option<std::sync::Arc<repose_experiments::backend::Gpu>>> {
-    use anyhow::Context;
-    if !gpu {
+    slots: Option<usize>,
+    memory_gib: Option<f64>,
+) -> anyhow::Result<Option<WorkerGpu>> {
+    if slots == Some(0) {
+        anyhow::bail!("--gpu-slots must be at least 1 (leave out --gpu and --gpu-slots for a CPU-only worker)");
+    }
+    let memory_bytes = match memory_gib {
+        None => None,
+        Some(gib) if gib.is_finite() && gib > 0.0 && gib <= MAX_GPU_MEMORY_GIB => {
+            Some((gib * f64::from(1u32 << 30)) as u64)
+        }
+        Some(gib) => anyhow::bail!("--gpu-memory must be a number of GiB above 0, got {gib}"),
+    };
+    if !gpu && slots.is_none() {
+        if memory_bytes.is_some() {
+            anyhow::bail!("--gpu-memory needs --gpu (or --gpu-slots)");
+        }
         return Ok(None);
     }
+    Ok(Some(WorkerGpu {
+        slots: slots.unwrap_or(1),
+        memory_bytes,
+    }))
+}
+
+/// The GPU a worker (`repose worker --gpu`, `repose up --gpu`) runs `gpu` jobs on, opened once
+/// at start (with its memory budget) and shared by its GPU slots; `None` without one. No
+/// adapter is an error naming the problem: a worker asked for a GPU never runs as a CPU-only
+/// one.
+pub fn open_worker_gpu(
+    settings: Option<WorkerGpu>,
+) -> anyhow::Result<Option<std::sync::Arc<repose_experiments::backend::Gpu>>> {
+    use anyhow::Context;
+    let Some(settings) = settings else {
+        return Ok(None);
+    };
     let opened = repose_experiments::backend::Gpu::open().context(
         "--gpu: this worker cannot open a GPU adapter, so it cannot run gpu jobs (start it \
          without --gpu to run CPU jobs only)",
     )?;
+    if let Some(bytes) = settings.memory_bytes {
+        opened.set_memory_budget(bytes);
+    }
     announce(&opened);
+    match (opened.memory(), opened.memory_budget()) {
+        (Some(memory), Some(budget)) => eprintln!(
+            "GPU: {} GiB of memory; its {} GPU slot(s) may hold {} GiB",
+            gib(memory),
+            settings.slots,
+            gib(budget)
+        ),
+        (None, Some(budget)) => eprintln!(
+            "GPU: its {} GPU slot(s) may hold {} GiB (--gpu-memory)",
+            settings.slots,
+            gib(budget)
+        ),
+        _ => eprintln!(
+            "GPU: this backend does not tell the device's memory: a world too large for it is \
+             refused by the driver (--gpu-memory sets a budget)"
+        ),
+    }
     Ok(Some(std::sync::Arc::new(opened)))
+}
+
+fn gib(bytes: u64) -> String {
+    format!("{:.1}", bytes as f64 / f64::from(1u32 << 30))
 }
 
 /// The GPU a command's `--backend gpu` runs on, opened (its adapter named on stderr); `None`
@@ -72,4 +139,27 @@ pub fn engine(
 ) -> repose_experiments::backend::Engine<'_> {
     use repose_experiments::backend::Engine;
     gpu.map_or(Engine::Cpu, Engine::Gpu)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn worker_gpu_settings_are_checked_and_gpu_slots_imply_a_gpu() {
+        assert_eq!(worker_gpu(false, None, None).unwrap(), None);
+        let one = worker_gpu(true, None, None).unwrap().unwrap();
+        assert_eq!((one.slots, one.memory_bytes), (1, None));
+        let four = worker_gpu(false, Some(4), Some(2.0)).unwrap().unwrap();
+        assert_eq!((four.slots, four.memory_bytes), (4, Some(2 << 30)));
+        for (gpu, slots, memory, named) in [
+            (true, Some(0), None, "--gpu-slots"),
+            (true, None, Some(0.0), "--gpu-memory"),
+            (true, None, Some(f64::NAN), "--gpu-memory"),
+            (false, None, Some(8.0), "--gpu-memory needs --gpu"),
+        ] {
+            let err = worker_gpu(gpu, slots, memory).unwrap_err().to_string();
+            assert!(err.contains(named), "{err}");
+        }
+    }
 }

@@ -476,6 +476,8 @@ async fn fake_worker(
         threads: 1,
         version: repose_api::version::RELEASE.into(),
         gpu: None,
+        gpu_memory_bytes: None,
+        gpu_slots: None,
     };
     let response = client
         .post(format!("{base}/v1/workers/register"))
@@ -490,6 +492,7 @@ async fn fake_worker(
     let claim = repose_api::ClaimRequest {
         worker_id: id,
         wait_s: 0.2,
+        backend: None,
     };
     while done.load(Ordering::Relaxed) < runs {
         let started = Instant::now();

@@ -171,8 +171,13 @@ impl UserClient {
             }
             printed = view.decisions.len();
             bar.set_position(view.stage_percent_done.unwrap_or(0.0).round() as u64);
+            let wait = view
+                .summary
+                .gpu_wait
+                .map(|wait| format!(" ({wait})"))
+                .unwrap_or_default();
             bar.set_message(format!(
-                "campaign {}: stage {}, batch {}",
+                "campaign {}: stage {}, batch {}{wait}",
                 view.summary.status, view.summary.stage, view.summary.batches
             ));
             if view.summary.status != "running" {
@@ -264,8 +269,13 @@ impl UserClient {
                 .eta_s
                 .map(|s| format!(", ~{} left", human_duration(s)))
                 .unwrap_or_default();
+            let wait = status
+                .summary
+                .gpu_wait
+                .map(|wait| format!(" ({wait})"))
+                .unwrap_or_default();
             bar.set_message(format!(
-                "{}: {} running, {} queued, {} dead{eta}",
+                "{}: {} running, {} queued, {} dead{eta}{wait}",
                 status.summary.name, counts.running, counts.queued, counts.dead
             ));
             if status.summary.state != BatchState::Active {
@@ -407,6 +417,9 @@ pub fn status(args: &StatusArgs) -> Result<()> {
                 } else {
                     println!("{}", batch_header());
                     println!("{}", batch_line(&status.summary));
+                    if let Some(wait) = status.summary.gpu_wait {
+                        println!("{wait}");
+                    }
                     if let Some(eta) = status.eta_s {
                         println!("estimated time left: {}", human_duration(eta));
                     }
@@ -423,6 +436,9 @@ pub fn status(args: &StatusArgs) -> Result<()> {
                     println!("{}", batch_header());
                     for batch in &batches {
                         println!("{}", batch_line(batch));
+                        if let Some(wait) = batch.gpu_wait {
+                            println!("{:<36}  {wait}", "");
+                        }
                     }
                 }
             }

@@ -74,13 +74,22 @@ pub struct UpArgs {
     /// Wall-clock seconds between two checkpoints of a run.
     #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
     pub checkpoint_every: f64,
-    /// Open a GPU at start and let the local workers run the jobs of `"backend": "gpu"`
-    /// batches on it (they share it). No adapter is an error at start.
+    /// Open a GPU at start and let the first local worker run the jobs of `"backend": "gpu"`
+    /// batches on it, in its GPU slots (--gpu-slots), besides its CPU slot. No adapter is an
+    /// error at start.
     #[arg(long)]
     pub gpu: bool,
+    /// GPU jobs run at the same time on the GPU, sharing it (implies --gpu; default 1 with
+    /// --gpu).
+    #[arg(long, value_name = "N")]
+    pub gpu_slots: Option<usize>,
+    /// Device memory the GPU slots' runs may hold together, GiB (default: 90 % of the GPU's,
+    /// where the driver tells it).
+    #[arg(long, value_name = "GIB")]
+    pub gpu_memory: Option<f64>,
     /// A run that reports no progress for SECONDS is stuck (a thread hung in a GPU driver): its
     /// job goes back to the queue and its local worker starts again (the stuck thread is left
-    /// behind). 0: never.
+    /// behind; a lost GPU is opened again). 0: never.
     #[arg(long, value_name = "SECONDS", default_value_t = 900.0)]
     pub stall_timeout: f64,
 }
@@ -99,6 +108,7 @@ struct UpConfig {
     bed_cache: PathBuf,
     checkpoints: PathBuf,
     checkpoint_every: Duration,
+    gpu_settings: Option<crate::backend::WorkerGpu>,
     gpu: Option<std::sync::Arc<repose_experiments::backend::Gpu>>,
     stall_timeout: Option<Duration>,
 }
@@ -165,6 +175,7 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
         exit_when_done: args.exit_when_done,
         artifacts: args.artifacts.clone(),
         tokens_file,
+        gpu_settings: crate::backend::worker_gpu(args.gpu, args.gpu_slots, args.gpu_memory)?,
         gpu: None,
         stall_timeout: crate::worker_cmd::stall_timeout(args.stall_timeout)?,
     })
@@ -172,7 +183,7 @@ fn config(args: &UpArgs) -> Result<UpConfig> {
 
 pub fn run(args: &UpArgs) -> Result<()> {
     let mut config = config(args)?;
-    config.gpu = crate::backend::open_worker_gpu(args.gpu)?;
+    config.gpu = crate::backend::open_worker_gpu(config.gpu_settings)?;
     // Warnings, and the server's one line per failed run, by default: the progress bar and the
     // analysis are the output here. The local workers' own lines about the same failures are
     // INFO under their crate's target, so each event shows once.
@@ -216,12 +227,18 @@ async fn up(config: UpConfig) -> Result<()> {
         worker.bed_cache = Some(config.bed_cache.clone());
         worker.checkpoint_dir = Some(config.checkpoints.clone());
         worker.checkpoint_every = config.checkpoint_every;
-        worker.gpu = config.gpu.clone();
+        if index == 0 {
+            // The first local worker carries the GPU slots, beside its CPU slot.
+            worker.gpu = config.gpu.clone();
+            worker.gpu_slots = config.gpu_settings.map_or(0, |gpu| gpu.slots);
+        }
         worker.stall_timeout = config.stall_timeout;
+        let gpu_settings = config.gpu_settings;
         let stopped = workers_stopped.clone();
         workers.push(tokio::spawn(async move {
-            // A local worker whose run stalled (its thread is stuck for good) has handed the
-            // job back and stopped: start it again, as a service manager would.
+            // A local worker whose run stalled (its thread is stuck for good) or whose GPU was
+            // lost has handed its jobs back and stopped: start it again, as a service manager
+            // would (on a GPU opened again).
             loop {
                 let mut stop = stopped.clone();
                 let outcome = repose_worker::run(worker.clone(), async move {
@@ -229,10 +246,23 @@ async fn up(config: UpConfig) -> Result<()> {
                 })
                 .await;
                 match outcome {
-                    Err(stalled @ repose_worker::WorkerError::Stalled { .. })
-                        if !*stopped.borrow() =>
-                    {
-                        eprintln!("local worker {index}: {stalled}; starting it again");
+                    Err(
+                        failed @ (repose_worker::WorkerError::Stalled { .. }
+                        | repose_worker::WorkerError::GpuFailed { .. }),
+                    ) if !*stopped.borrow() => {
+                        eprintln!("local worker {index}: {failed}; starting it again");
+                        if worker.gpu.as_ref().is_some_and(|gpu| gpu.lost().is_some()) {
+                            worker.gpu = tokio::task::spawn_blocking(move || {
+                                crate::backend::open_worker_gpu(gpu_settings)
+                            })
+                            .await
+                            .map_err(|e| {
+                                repose_worker::WorkerError::Config(format!(
+                                    "reopening the GPU: {e}"
+                                ))
+                            })?
+                            .map_err(|e| repose_worker::WorkerError::Config(format!("{e:#}")))?;
+                        }
                     }
                     other => return other,
                 }
@@ -250,6 +280,13 @@ async fn up(config: UpConfig) -> Result<()> {
         config.threads,
         config.tokens_file.display()
     );
+    if let (Some(gpu), Some(settings)) = (&config.gpu, config.gpu_settings) {
+        println!(
+            "  worker 0 also runs GPU jobs on {} in {} GPU slot(s)",
+            gpu.name(),
+            settings.slots
+        );
+    }
     println!("  export REPOSE_SERVER={url}");
     println!("  export REPOSE_TOKEN={}", tokens.user);
     if retired > 0 {
@@ -337,6 +374,8 @@ async fn take_back_retired_workers_jobs(
                 threads: retired.threads,
                 version: repose_api::version::RELEASE.to_owned(),
                 gpu: None,
+                gpu_memory_bytes: None,
+                gpu_slots: None,
             })
             .await?;
     }

@@ -7,8 +7,9 @@ use repose_worker::{run, WorkerConfig, WorkerError};
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// Exit status of a worker whose run stalled (`--stall-timeout`): its service manager restarts
-/// it (the systemd unit's `RestartPreventExitStatus=2` spares only refusals).
+/// Exit status of a worker whose run stalled (`--stall-timeout`) or whose GPU was lost: its
+/// service manager restarts it (the systemd unit's `RestartPreventExitStatus=2` spares only
+/// refusals).
 pub const STALLED_EXIT: i32 = 3;
 
 /// Longest accepted `--exit-when-idle`: a week.
@@ -22,10 +23,20 @@ pub struct WorkerArgs {
     /// Worker token (`repose token create NAME --role worker`).
     #[arg(long, env = "REPOSE_WORKER_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
-    /// Jobs run at the same time.
+    /// CPU jobs run at the same time (CPU slots; 0: GPU jobs only, with --gpu-slots).
     #[arg(long, env = "REPOSE_SLOTS", default_value_t = 1)]
     pub slots: usize,
-    /// Threads per job (default: all cores divided among the slots). Results do not depend on it.
+    /// GPU jobs run at the same time on this worker's GPU, sharing it (GPU slots; implies
+    /// --gpu; default 1 with --gpu). They claim only GPU jobs and the CPU slots only CPU jobs.
+    #[arg(long, env = "REPOSE_GPU_SLOTS", value_name = "N")]
+    pub gpu_slots: Option<usize>,
+    /// Device memory the GPU slots' runs may hold together, GiB (default: 90 % of the GPU's,
+    /// where the driver tells it). A run whose world needs more is refused at admission;
+    /// one that fits only once others end waits for them.
+    #[arg(long, env = "REPOSE_GPU_MEMORY", value_name = "GIB")]
+    pub gpu_memory: Option<f64>,
+    /// Threads per job (default: all cores divided among the CPU slots). Results do not depend
+    /// on it.
     #[arg(long, env = "REPOSE_THREADS")]
     pub threads: Option<usize>,
     /// Keep each run's pictures (e.g. pile.svg) under DIR/<run id>/.
@@ -59,13 +70,13 @@ pub struct WorkerArgs {
     #[arg(long, env = "REPOSE_EXIT_WHEN_IDLE", value_name = "SECONDS")]
     pub exit_when_idle: Option<f64>,
     /// Open a GPU (Vulkan, Metal, DX12; `WGPU_ADAPTER_NAME` picks one) at start and run the
-    /// jobs of `"backend": "gpu"` batches on it, besides CPU jobs; its slots share it. No
-    /// adapter is an error at start, never a CPU-only worker.
+    /// jobs of `"backend": "gpu"` batches on it in its GPU slots (--gpu-slots), besides CPU
+    /// jobs in its CPU slots. No adapter is an error at start, never a CPU-only worker.
     #[arg(long, env = "REPOSE_GPU")]
     pub gpu: bool,
     /// A run that reports no progress for SECONDS is stuck (a thread hung in a GPU driver): its
-    /// job is handed back to run elsewhere and the worker exits (status 3) for its service
-    /// manager to start it again. 0: never.
+    /// job is handed back to run elsewhere (a GPU run's: every GPU job) and the worker exits
+    /// (status 3, as for a lost GPU) for its service manager to start it again. 0: never.
     #[arg(
         long,
         env = "REPOSE_STALL_TIMEOUT",
@@ -83,10 +94,12 @@ pub(crate) fn stall_timeout(seconds: f64) -> Result<Option<Duration>> {
     Ok((seconds > 0.0).then(|| Duration::from_secs_f64(seconds)))
 }
 
-/// The validated worker configuration.
+/// The validated worker configuration (the GPU, if asked for, is opened by the caller:
+/// [`gpu_settings`]).
 pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
-    if args.slots == 0 {
-        bail!("--slots must be at least 1");
+    let gpu_slots = gpu_settings(args)?.map_or(0, |gpu| gpu.slots);
+    if args.slots == 0 && gpu_slots == 0 {
+        bail!("--slots must be at least 1 (0 only beside --gpu-slots)");
     }
     if !(args.server.starts_with("http://") || args.server.starts_with("https://")) {
         bail!(
@@ -98,7 +111,7 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
     let threads = match args.threads {
         Some(0) => bail!("--threads must be at least 1"),
         Some(t) => t,
-        None => (cores / args.slots).max(1),
+        None => (cores / args.slots.max(1)).max(1),
     };
     let exit_when_idle = match args.exit_when_idle {
         None => None,
@@ -111,6 +124,7 @@ pub fn config(args: &WorkerArgs) -> Result<WorkerConfig> {
     config.stall_timeout = stall_timeout(args.stall_timeout)?;
     config.token = args.token.clone();
     config.slots = args.slots;
+    config.gpu_slots = gpu_slots;
     config.instance_id = args.instance_id;
     config.threads = threads;
     config.artifacts_dir = args.artifacts.clone();
@@ -129,18 +143,23 @@ pub(crate) fn checkpoint_interval(seconds: f64) -> Result<Duration> {
     }
 }
 
+/// The GPU the flags ask for (`--gpu`, `--gpu-slots`, `--gpu-memory`), checked.
+pub fn gpu_settings(args: &WorkerArgs) -> Result<Option<crate::backend::WorkerGpu>> {
+    crate::backend::worker_gpu(args.gpu, args.gpu_slots, args.gpu_memory)
+}
+
 pub fn run_worker(args: &WorkerArgs) -> Result<()> {
     let mut config = config(args)?;
     // Before logging starts: the Vulkan loader's INFO lines about opening a device are noise.
-    config.gpu = crate::backend::open_worker_gpu(args.gpu)?;
+    config.gpu = crate::backend::open_worker_gpu(gpu_settings(args)?)?;
     crate::init_logging("info,wgpu_core=warn,wgpu_hal=warn,naga=warn");
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     let outcome = runtime.block_on(run(config, crate::server_cmd::shutdown_signal()));
     // A stalled run's thread never returns: end without waiting for it.
     runtime.shutdown_background();
-    if let Err(stalled @ WorkerError::Stalled { .. }) = &outcome {
+    if let Err(stalled @ (WorkerError::Stalled { .. } | WorkerError::GpuFailed { .. })) = &outcome {
         // Not status 2 (a refusal a person must fix, which the service manager leaves alone):
-        // a stalled worker is to be started again.
+        // a stalled worker, or one whose GPU was lost, is to be started again.
         eprintln!("error: worker failed: {stalled}");
         std::process::exit(STALLED_EXIT);
     }
@@ -201,6 +220,21 @@ mod tests {
             let err = config(&cli.worker).unwrap_err();
             assert!(err.to_string().contains("--stall-timeout"), "{bad}: {err}");
         }
+    }
+
+    #[test]
+    fn gpu_slots_are_counted_apart_from_the_cpu_slots() {
+        let cli = Cli::try_parse_from(["repose"]).unwrap();
+        assert_eq!((config_of(&cli).slots, config_of(&cli).gpu_slots), (1, 0));
+        let cli = Cli::try_parse_from(["repose", "--gpu"]).unwrap();
+        assert_eq!((config_of(&cli).slots, config_of(&cli).gpu_slots), (1, 1));
+        let cli = Cli::try_parse_from(["repose", "--slots", "0", "--gpu-slots", "4"]).unwrap();
+        let parsed = config_of(&cli);
+        assert_eq!((parsed.slots, parsed.gpu_slots), (0, 4));
+        assert!(parsed.threads >= 1);
+        let cli = Cli::try_parse_from(["repose", "--slots", "0"]).unwrap();
+        let err = config(&cli.worker).unwrap_err();
+        assert!(err.to_string().contains("--slots"), "{err}");
     }
 
     fn config_of(cli: &Cli) -> WorkerConfig {

@@ -15,6 +15,14 @@
 //! What this backend does not simulate (a world's own particle sources: its caller serves
 //! them) is refused by name, never approximated.
 //!
+//! **Sharing a device**: one [`Gpu`] runs several worlds at once, each from its own thread (a
+//! worker's GPU slots), each giving the bits it gives alone; a read-back waits for its own
+//! world's submissions only. Every world is admitted against the device's memory before
+//! anything is allocated ([`Gpu::memory_budget`]: by default 90 % of the largest device-local
+//! heap, where Vulkan tells it): one that can never fit is refused at once
+//! ([`GpuError::Capacity`], naming both sizes), one that fits only once others end waits for
+//! them. A lost device ([`Gpu::lost`]) refuses new worlds.
+//!
 //! **Positions** are integer voxels plus f32 offsets inside the voxel, so the vector between
 //! two nearby particles (and a particle and a triangle's first corner) is exact to the
 //! offsets' resolution anywhere in the domain ([`scene::Grid`]).
@@ -34,7 +42,7 @@ mod world;
 
 pub mod bench;
 
-pub use device::Gpu;
+pub use device::{Gpu, DEFAULT_ADMISSION_WAIT};
 pub use error::GpuError;
 pub use movers::MAX_MOVERS;
 pub use profile::{KernelTime, Profile};

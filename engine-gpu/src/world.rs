@@ -12,6 +12,7 @@ use wgpu::util::DeviceExt;
 
 use repose_engine::particles::ParticleSpec;
 
+use crate::device::Admission;
 use crate::movers::{frames_at, Frames, Mover, SlabFrame};
 use crate::profile::{Profile, Profiler};
 use crate::scene::{
@@ -160,6 +161,49 @@ pub struct GpuWorld {
     seen: Mutex<Option<Seen>>,
     /// A read-back waited for the queue since the last submission of steps.
     drained: std::sync::atomic::AtomicBool,
+    /// The world's share of the device's memory, given back when it is dropped.
+    _admission: Admission,
+}
+
+/// Staging bytes per grain slot of the largest read-back (the grains' voxel, offset,
+/// velocity and spin records), admitted with a world's buffers.
+const READ_BACK_BYTES_PER_SLOT: u64 = 4 * 16;
+
+/// Bytes of device memory the buffers of `scene`'s world take ([`GpuWorld::memory_bytes`]),
+/// known before any is allocated: what a world is admitted with (besides its read-back
+/// staging).
+fn footprint(scene: &Scene, springs: u64) -> u64 {
+    let size = |slice: usize| slice as u64;
+    let n = scene.cell.len() as u64;
+    let list = n * NEIGHBOUR_CAPACITY as u64;
+    let cells = scene.grid.cells() as u64;
+    let movers = scene.movers.len() as u64;
+    let tris = if scene.tris.is_empty() {
+        80
+    } else {
+        size(std::mem::size_of_val(&scene.tris[..]))
+    };
+    let uploaded = size(std::mem::size_of_val(&scene.cell[..]))
+        + size(std::mem::size_of_val(&scene.off[..]))
+        + size(std::mem::size_of_val(&scene.vel[..]))
+        + size(std::mem::size_of_val(&scene.omg[..]))
+        + tris
+        + size(std::mem::size_of_val(&scene.tri_grid[..]))
+        + size(std::mem::size_of_val(&scene.pairs[..]));
+    let zeroed = 3 * n * 16 // frc, trq, disp
+        + list * 4 // nbr
+        + n * 4 // nbn
+        + 2 * list * 16 * springs // spr, spr2
+        + list * 4 // nbr2
+        + n * 4 // binned
+        + cells * BIN_CAPACITY as u64 * 4 // bins
+        + cells * 4 // binn
+        + n * WALL_CAPACITY as u64 * 16 * (1 + springs) // walls
+        + ctl::WORDS as u64 * 4
+        + n * movers * 32 // wload
+        + SERIES_RECORDS as u64 * movers * 32 // series
+        + n * 16; // slab
+    uploaded + zeroed + FRAME_BYTES * (STEPS_PER_SUBMIT + 1)
 }
 
 /// The control words and the empty slots as a read-back of the particles found them after
@@ -273,6 +317,16 @@ impl GpuWorld {
                 limits.max_compute_workgroups_per_dimension
             )));
         }
+        // Admitted against the device's memory before anything is allocated: its buffers and
+        // its largest read-back's staging (the grains' four records).
+        let buffers = footprint(&scene, springs);
+        let admission = gpu.admit(
+            buffers + READ_BACK_BYTES_PER_SLOT * n as u64,
+            &format!(
+                "a world of {n} grain slots and {} grid cells",
+                scene.grid.cells()
+            ),
+        )?;
         let device = gpu.device.clone();
         let queue = gpu.queue.clone();
         // Allocation and pipeline errors come back as errors, not as wgpu's default panic.
@@ -472,6 +526,7 @@ impl GpuWorld {
         let out_of_memory = pollster::block_on(device.pop_error_scope());
         let invalid = pollster::block_on(device.pop_error_scope());
         drop(_scopes);
+        debug_assert_eq!(bytes, buffers, "footprint() counts every buffer");
         if let Some(e) = out_of_memory {
             return Err(GpuError::Capacity(format!("allocating {bytes} bytes: {e}")));
         }
@@ -533,6 +588,7 @@ impl GpuWorld {
             drained: std::sync::atomic::AtomicBool::new(true),
             forces_current: false,
             adapter: gpu.name().to_owned(),
+            _admission: admission,
         };
         // The first step builds the neighbour lists.
         gpu_world.write_control(ctl::REBUILD, 1);
@@ -1068,13 +1124,19 @@ impl GpuWorld {
             }
             at += size;
         }
-        self.queue.submit([encoder.finish()]);
+        let submitted = self.queue.submit([encoder.finish()]);
         let slice = staging.slice(..);
         let (sender, receiver) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = sender.send(r);
         });
-        self.finish()?;
+        // This world's work up to the copy (the queue runs in order), not the submissions
+        // other worlds sharing the device made since.
+        self.device
+            .poll(wgpu::PollType::WaitForSubmissionIndex(submitted))
+            .map_err(|e| GpuError::Lost(e.to_string()))?;
+        self.drained
+            .store(true, std::sync::atomic::Ordering::Relaxed);
         receiver
             .recv()
             .map_err(|e| GpuError::Lost(e.to_string()))?

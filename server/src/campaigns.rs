@@ -51,7 +51,7 @@ pub async fn create(
             // unknown kind or a bad spec is refused before anything runs.
             for key in r.experiment_keys().iter().skip(1) {
                 let mut other = first[0].clone();
-                other.experiment = r.template_for(StageTemplate::Screening, key);
+                other.experiment = r.with_backend(r.template_for(StageTemplate::Screening, key));
                 submit::plan_batch(other, 0).map_err(|err| {
                     prefix_field(
                         err,

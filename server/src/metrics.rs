@@ -14,7 +14,7 @@ use axum::extract::{Request, State};
 use axum::middleware::Next;
 use axum::response::Response;
 
-use crate::types::Gauges;
+use crate::types::{Gauges, GpuWorkerGauge};
 
 /// Upper bounds (seconds) of the claim-latency histogram buckets.
 const CLAIM_BUCKETS: [f64; 12] = [
@@ -123,6 +123,50 @@ impl Metrics {
             "repose_workers_registered {}",
             gauges.workers_registered
         );
+        let window = crate::db::GPU_WORKER_WINDOW.as_secs() / 60;
+        family(
+            &mut out,
+            "repose_batches_waiting_for_gpu_worker",
+            "gauge",
+            &format!(
+                "Active gpu batches while no worker with a GPU was seen within the last {window} min."
+            ),
+        );
+        let _ = writeln!(
+            out,
+            "repose_batches_waiting_for_gpu_worker {}",
+            gauges.batches_waiting_for_gpu
+        );
+        for (name, help, value) in [
+            (
+                "repose_gpu_worker_memory_bytes",
+                "The GPU memory a worker with a GPU reported at registration",
+                (|g: &GpuWorkerGauge| g.memory_bytes) as fn(&GpuWorkerGauge) -> Option<i64>,
+            ),
+            (
+                "repose_gpu_worker_slots",
+                "Runs a worker with a GPU shares its GPU among at once",
+                |g| g.slots,
+            ),
+            (
+                "repose_gpu_worker_running_jobs",
+                "Jobs of gpu batches a worker with a GPU runs now",
+                |g| Some(g.running),
+            ),
+        ] {
+            let help = format!("{help} (workers seen within the last {window} min).");
+            family(&mut out, name, "gauge", &help);
+            for gpu in &gauges.gpu_workers {
+                if let Some(value) = value(gpu) {
+                    let _ = writeln!(
+                        out,
+                        "{name}{{worker=\"{}\",adapter=\"{}\"}} {value}",
+                        label(&gpu.worker),
+                        label(&gpu.adapter)
+                    );
+                }
+            }
+        }
 
         family(
             &mut out,
@@ -242,6 +286,14 @@ impl Metrics {
     }
 }
 
+/// A label value in the text format: backslash, double quote and line feed escaped.
+fn label(value: &str) -> String {
+    value
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
+}
+
 fn family(out: &mut String, name: &str, kind: &str, help: &str) {
     let _ = writeln!(out, "# HELP {name} {help}");
     let _ = writeln!(out, "# TYPE {name} {kind}");
@@ -282,5 +334,29 @@ mod tests {
             .parse()
             .unwrap();
         assert!((sum - 3.0008).abs() < 1e-9, "{sum}");
+    }
+
+    #[test]
+    fn gpu_workers_are_listed_with_escaped_labels() {
+        let gauges = Gauges {
+            gpu_workers: vec![GpuWorkerGauge {
+                worker: "w1".into(),
+                adapter: "GPU \"x\"\\1".into(),
+                memory_bytes: Some(1 << 30),
+                slots: Some(4),
+                running: 2,
+            }],
+            ..Gauges::default()
+        };
+        let text = Metrics::default().render(&gauges);
+        let labels = r#"{worker="w1",adapter="GPU \"x\"\\1"}"#;
+        for line in [
+            format!("repose_gpu_worker_memory_bytes{labels} 1073741824"),
+            format!("repose_gpu_worker_slots{labels} 4"),
+            format!("repose_gpu_worker_running_jobs{labels} 2"),
+            "repose_batches_waiting_for_gpu_worker 0".to_owned(),
+        ] {
+            assert!(text.contains(&format!("{line}\n")), "{line} not in\n{text}");
+        }
     }
 }

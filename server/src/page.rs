@@ -21,7 +21,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Form, Router};
 use maud::{html, Markup, PreEscaped, DOCTYPE};
-use repose_api::{BatchState, BatchSummary, JobView, RunState, WorkerView};
+use repose_api::{BackendKind, BatchState, BatchSummary, JobView, RunState, WorkerView};
 use serde::Deserialize;
 use uuid::Uuid;
 
@@ -445,8 +445,11 @@ fn batches_section(data: &StatusData) -> Markup {
                     @let b = &line.summary;
                     tr {
                         td { (b.name) br; span.muted { code { (short_id(b.id)) } } }
-                        td { (b.kind) }
-                        td { span class=(format!("state-{}", batch_state_word(b.state))) { (batch_state_word(b.state)) } }
+                        td { (b.kind) @if b.backend == BackendKind::Gpu { br; span.muted { "on the GPU" } } }
+                        td {
+                            span class=(format!("state-{}", batch_state_word(b.state))) { (batch_state_word(b.state)) }
+                            @if let Some(wait) = b.gpu_wait { br; span.error { (wait) } }
+                        }
                         td { (progress(b)) }
                         td.nowrap { (time_left(line)) }
                         td { (ago(data.now_ms, b.created_at_ms)) }
@@ -501,7 +504,10 @@ fn campaigns_section(data: &StatusData) -> Markup {
                 @for c in &data.campaigns {
                     tr {
                         td { (c.name) br; span.muted { code { (short_id(c.id)) } } }
-                        td { span class=(format!("state-{}", c.status)) { (c.status.replace('_', " ")) } }
+                        td {
+                            span class=(format!("state-{}", c.status)) { (c.status.replace('_', " ")) }
+                            @if let Some(wait) = c.gpu_wait { br; span.error { (wait) } }
+                        }
                         td { (c.stage.replace('_', " ")) }
                         td.num { (c.batches_issued) }
                         td { (ago(data.now_ms, c.updated_at_ms)) }
@@ -526,7 +532,17 @@ fn workers_section(data: &StatusData) -> Markup {
                         td { (w.view.host) br; span.muted { code { (short_id(w.view.id)) } } }
                         td.num {
                             (w.view.threads)
-                            @if let Some(gpu) = &w.view.gpu { br; span.muted { "GPU " (gpu) } }
+                            @if let Some(gpu) = &w.view.gpu {
+                                br; span.muted {
+                                    "GPU " (gpu)
+                                    @if let Some(bytes) = w.view.gpu_memory_bytes {
+                                        ", " (format!("{:.0}", bytes as f64 / f64::from(1u32 << 30))) " GiB"
+                                    }
+                                    @if let Some(slots) = w.view.gpu_slots {
+                                        ", " (w.view.gpu_running_jobs) " of " (slots) " GPU slots busy"
+                                    }
+                                }
+                            }
                         }
                         td { (w.view.version) }
                         td {

@@ -242,7 +242,7 @@ fn prepare_template(request: &BatchRequest, kind: Kind) -> Result<Value, AppErro
     let spec = kind
         .prepare(experiment.preset.as_deref(), &experiment.spec)
         .map_err(experiment_error)?;
-    spec.check_backend(experiment.backend)
+    spec.check_backend(experiment.backend())
         .map_err(experiment_error)?;
     Ok(spec.to_value())
 }
@@ -276,7 +276,7 @@ fn check_run_spec(
     natural: &[f64],
 ) -> Result<(), AppError> {
     let Err(err) = ExperimentSpec::parse(kind, spec)
-        .and_then(|parsed| parsed.check_backend(request.experiment.backend))
+        .and_then(|parsed| parsed.check_backend(request.experiment.backend()))
     else {
         return Ok(());
     };

@@ -86,6 +86,21 @@ pub struct Gauges {
     pub write_failures: u64,
     /// Whether the last write transaction failed and none succeeded since (`/healthz` is 503).
     pub writes_failing: bool,
+    /// The workers with a GPU seen within [`GPU_WORKER_WINDOW`](crate::db::GPU_WORKER_WINDOW).
+    pub gpu_workers: Vec<GpuWorkerGauge>,
+    /// Active `gpu` batches while no worker with a GPU was seen within that window.
+    pub batches_waiting_for_gpu: i64,
+}
+
+/// What a worker with a GPU reported of it, and the runs in flight on it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct GpuWorkerGauge {
+    pub worker: String,
+    pub adapter: String,
+    pub memory_bytes: Option<i64>,
+    pub slots: Option<i64>,
+    /// Leases it holds on jobs of `gpu` batches.
+    pub running: i64,
 }
 
 /// One run ready to be stored.

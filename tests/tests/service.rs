@@ -1389,10 +1389,12 @@ fn small_gpu_aor_batch() -> Value {
 }
 
 /// `repose worker --gpu` (issue 38): without an adapter the worker stops at start naming the
-/// problem (never a CPU-only worker); with one (lavapipe in CI) it registers its adapter, a
-/// `"backend": "gpu"` batch's run goes to it and not to the CPU-only worker beside it, and the
-/// result's provenance names the GPU. Where no adapter can be opened at all the rest is
-/// skipped with a message (`REPOSE_REQUIRE_GPU=1` makes that a failure).
+/// problem (never a CPU-only worker). A `"backend": "gpu"` batch submitted while no worker has
+/// a GPU says so in `repose status` (issue 49). A worker with GPU slots (`--gpu-slots 2`, on
+/// lavapipe in CI) registers its adapter and slots, the batch's run goes to it and not to the
+/// CPU-only worker beside it, and the result's provenance names the GPU. Where no adapter can
+/// be opened at all the rest is skipped with a message (`REPOSE_REQUIRE_GPU=1` makes that a
+/// failure).
 #[test]
 fn a_gpu_batch_runs_on_the_worker_that_opened_a_gpu_and_its_result_names_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -1424,8 +1426,21 @@ fn a_gpu_batch_runs_on_the_worker_that_opened_a_gpu_and_its_result_names_it() {
     );
     assert!(service.get("/v1/workers").as_array().unwrap().is_empty());
 
+    let batch = service.submit(&small_gpu_aor_batch());
+    let status = std::process::Command::new(common::repose_bin())
+        .args(["status", "--server", &service.url])
+        .env("REPOSE_TOKEN", &service.user_token)
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{}", common::stderr(&status));
+    let listed = common::stdout(&status);
+    assert!(
+        listed.contains("waiting for a GPU worker: none registered in the last 10 min"),
+        "{listed}"
+    );
+
     let _cpu = service.start_worker("cpu-worker", &[]);
-    let mut gpu = service.start_worker("gpu-worker", &["--gpu"]);
+    let mut gpu = service.start_worker("gpu-worker", &["--slots", "0", "--gpu-slots", "2"]);
     // Registered with its adapter, or stopped because there is none.
     let deadline = std::time::Instant::now() + Duration::from_secs(60);
     let gpu_worker = loop {
@@ -1447,8 +1462,8 @@ fn a_gpu_batch_runs_on_the_worker_that_opened_a_gpu_and_its_result_names_it() {
         std::thread::sleep(Duration::from_millis(100));
     };
     let adapter = gpu_worker["gpu"].as_str().unwrap();
+    assert_eq!(gpu_worker["gpu_slots"], 2, "{gpu_worker}");
 
-    let batch = service.submit(&small_gpu_aor_batch());
     let status = service.wait_finished(&batch, Duration::from_secs(300));
     assert_eq!(status["state"], "completed", "{status}");
     let runs = runs(&service, &batch);

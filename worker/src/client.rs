@@ -3,8 +3,8 @@
 use std::time::Duration;
 
 use repose_api::{
-    ApiError, ClaimRequest, ClaimResponse, Completion, Failure, Heartbeat, HeartbeatResponse,
-    JobUpdateResponse, Release, WorkerRegistered, WorkerRegistration,
+    ApiError, BackendKind, ClaimRequest, ClaimResponse, Completion, Failure, Heartbeat,
+    HeartbeatResponse, JobUpdateResponse, Release, WorkerRegistered, WorkerRegistration,
 };
 use reqwest::StatusCode;
 use serde::de::DeserializeOwned;
@@ -103,10 +103,12 @@ impl Client {
         &self,
         worker_id: Uuid,
         wait: Duration,
+        backend: Option<BackendKind>,
     ) -> Result<Option<ClaimResponse>, CallError> {
         let request = ClaimRequest {
             worker_id,
             wait_s: wait.as_secs_f64(),
+            backend,
         };
         self.post("/v1/jobs/claim", &request, wait + Duration::from_secs(10))
             .await

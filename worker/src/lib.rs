@@ -9,6 +9,12 @@
 //!   so another worker starts them at once (no attempt is counted);
 //! - a server that refuses the worker's release (at registration or at a claim after a server
 //!   upgrade) stops the worker with [`WorkerError::IncompatibleVersion`] instead of retrying;
+//! - CPU slots ([`WorkerConfig::slots`]) claim CPU jobs only and GPU slots
+//!   ([`WorkerConfig::gpu_slots`]) GPU jobs only, so a GPU worker never takes more CPU jobs than
+//!   its cores serve; the GPU slots share one adapter;
+//! - a run that stalls, or a GPU that is lost, fails the jobs it held (they run again
+//!   elsewhere) and stops the worker with [`WorkerError::Stalled`] or
+//!   [`WorkerError::GpuFailed`], for its service manager to start it again;
 //! - with [`WorkerConfig::exit_when_idle`], the worker stops by itself once no job was
 //!   available for that long (batch schedulers: an array task ends when the queue is empty).
 //!
@@ -33,7 +39,7 @@ use std::time::{Duration, Instant};
 use rand::Rng;
 use repose_api::BackendKind;
 use repose_api::{ClaimResponse, Completion, Failure, Heartbeat, Release, WorkerRegistration};
-use repose_experiments::backend::{Engine, Gpu};
+use repose_experiments::backend::{Engine, Gpu, DEFAULT_ADMISSION_WAIT};
 use repose_experiments::catalog::{
     BedStore, CheckpointStore, ExperimentError, ExperimentSpec, NoBedStore, NoCheckpoints, Outcome,
 };
@@ -53,8 +59,11 @@ pub struct WorkerConfig {
     pub server: String,
     /// Worker token, sent as `Authorization: Bearer`.
     pub token: Option<String>,
-    /// Jobs run at the same time.
+    /// CPU jobs run at the same time (CPU slots; 0: a worker for GPU jobs only).
     pub slots: usize,
+    /// GPU jobs run at the same time on [`WorkerConfig::gpu`] (GPU slots), besides the CPU
+    /// slots; at least 1 with a GPU, 0 without.
+    pub gpu_slots: usize,
     /// Threads each job's simulation uses.
     pub threads: usize,
     /// Host name reported at registration.
@@ -84,9 +93,9 @@ pub struct WorkerConfig {
     /// Always this build's release ([`repose_api::version::RELEASE`]) except in tests.
     pub version: String,
     /// The GPU this worker runs `gpu` jobs on, opened once by its caller ([`Gpu::open`];
-    /// `repose worker --gpu`) and shared by its slots: the worker names its adapter at
-    /// registration, so the server hands it `gpu` jobs too. None: CPU jobs only (the server
-    /// gives it no `gpu` job).
+    /// `repose worker --gpu`) and shared by its GPU slots: the worker names its adapter at
+    /// registration, so the server hands its GPU slots `gpu` jobs. None: CPU jobs only (the
+    /// server gives it no `gpu` job).
     pub gpu: Option<Arc<Gpu>>,
     /// A run that reports no progress for this long is stuck (a thread hung in a GPU driver,
     /// an endless loop): its job is reported failed as this worker's (it runs again elsewhere)
@@ -106,6 +115,7 @@ impl WorkerConfig {
             server: server.into(),
             token: None,
             slots: 1,
+            gpu_slots: 0,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             host: hostname(),
             instance_id: None,
@@ -161,6 +171,14 @@ pub enum WorkerError {
          start it again"
     )]
     Stalled { job: Uuid, seconds: f64 },
+    /// The GPU was lost (a driver reset, a device gone): the GPU jobs in flight were reported
+    /// failed (they run again elsewhere) and the worker stopped. Start it again, on a GPU
+    /// that works.
+    #[error(
+        "the GPU was lost ({reason}); its jobs were handed back and this worker stopped: start \
+         it again"
+    )]
+    GpuFailed { reason: String },
 }
 
 /// What a worker did before it stopped.
@@ -183,8 +201,23 @@ pub async fn run(
     config: WorkerConfig,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<WorkerSummary, WorkerError> {
-    if config.slots == 0 {
-        return Err(WorkerError::Config("slots must be at least 1".into()));
+    if config.slots + config.gpu_slots == 0 {
+        return Err(WorkerError::Config(
+            "slots and gpu_slots must not both be 0".into(),
+        ));
+    }
+    match (&config.gpu, config.gpu_slots) {
+        (Some(_), 0) => {
+            return Err(WorkerError::Config(
+                "gpu_slots must be at least 1 with a GPU".into(),
+            ))
+        }
+        (None, n) if n > 0 => {
+            return Err(WorkerError::Config(
+                "gpu_slots need a GPU (WorkerConfig::gpu)".into(),
+            ))
+        }
+        _ => {}
     }
     if config.threads == 0 {
         return Err(WorkerError::Config("threads must be at least 1".into()));
@@ -211,6 +244,11 @@ pub async fn run(
         threads: u32::try_from(config.threads).unwrap_or(u32::MAX),
         version: config.version.clone(),
         gpu: config.gpu.as_ref().map(|gpu| gpu.name().to_owned()),
+        gpu_memory_bytes: config.gpu.as_ref().and_then(|gpu| gpu.memory()),
+        gpu_slots: config
+            .gpu
+            .as_ref()
+            .map(|_| u32::try_from(config.gpu_slots).unwrap_or(u32::MAX)),
     };
     let registered = {
         let mut backoff = Backoff::new(config.max_backoff);
@@ -234,8 +272,19 @@ pub async fn run(
     let lease = Duration::try_from_secs_f64(registered.lease_s.clamp(1.0, 86_400.0))
         .unwrap_or(Duration::from_secs(60));
     tracing::info!(worker = %registered.worker_id, server = %config.server, slots = config.slots,
-        threads = config.threads, gpu = config.gpu.as_ref().map_or("none".into(), |g| g.describe()),
+        gpu_slots = config.gpu_slots, threads = config.threads,
+        gpu = config.gpu.as_ref().map_or("none".into(), |g| g.describe()),
+        gpu_memory_budget = config.gpu.as_ref().and_then(|g| g.memory_budget()),
         "worker registered");
+    if let Some(gpu) = &config.gpu {
+        // A world that fits the GPU only once other runs end waits for them, well within the
+        // stall watchdog's limit (the wait reports no progress).
+        gpu.set_admission_wait(
+            config
+                .stall_timeout
+                .map_or(DEFAULT_ADMISSION_WAIT, |limit| limit / 2),
+        );
+    }
 
     let context = Arc::new(SlotContext {
         client,
@@ -248,9 +297,16 @@ pub async fn run(
         busy: AtomicUsize::new(0),
         idle_since: Mutex::new(Instant::now()),
         exited_idle: AtomicBool::new(false),
+        gpu_failed: watch::channel(None).0,
     });
-    let slots: Vec<_> = (0..context.config.slots)
-        .map(|slot| tokio::spawn(slot_loop(context.clone(), slot)))
+    if let Some(gpu) = context.config.gpu.clone() {
+        tokio::spawn(watch_gpu(context.clone(), gpu));
+    }
+    let (cpu, gpu) = (context.config.slots, context.config.gpu_slots);
+    let slots: Vec<_> = (0..cpu)
+        .map(|slot| (slot, BackendKind::Cpu))
+        .chain((cpu..cpu + gpu).map(|slot| (slot, BackendKind::Gpu)))
+        .map(|(slot, backend)| tokio::spawn(slot_loop(context.clone(), slot, backend)))
         .collect();
     let mut summary = WorkerSummary::default();
     for slot in slots {
@@ -286,9 +342,51 @@ struct SlotContext {
     idle_since: Mutex<Instant>,
     /// Set when the idle exit stopped the worker.
     exited_idle: AtomicBool,
+    /// Why the GPU failed (lost, or a run on it stalled), once it did: every GPU job in
+    /// flight is then reported failed.
+    gpu_failed: watch::Sender<Option<String>>,
+}
+
+/// How often the worker asks its GPU whether it was lost.
+const GPU_CHECK: Duration = Duration::from_millis(250);
+
+/// Watches `gpu` until the worker stops: a lost device fails the GPU jobs in flight and stops
+/// the worker ([`SlotContext::gpu_failed`]).
+async fn watch_gpu(context: Arc<SlotContext>, gpu: Arc<Gpu>) {
+    let mut stop = context.stop.clone();
+    loop {
+        tokio::select! {
+            () = tokio::time::sleep(GPU_CHECK) => {}
+            _ = stop.wait_for(|s| *s) => return,
+        }
+        if let Some(reason) = gpu.lost() {
+            context.gpu_failed(
+                format!("the device was lost: {reason}"),
+                WorkerError::GpuFailed { reason },
+            );
+            return;
+        }
+    }
 }
 
 impl SlotContext {
+    /// The GPU failed (`reason`): every GPU job in flight is reported failed, and the worker
+    /// stops with `error` (unless it stopped for another reason first).
+    fn gpu_failed(&self, reason: String, error: WorkerError) {
+        let first = self.gpu_failed.send_if_modified(|failed| {
+            let first = failed.is_none();
+            failed.get_or_insert(reason.clone());
+            first
+        });
+        if first {
+            tracing::error!(%reason, "the GPU failed; failing its jobs and stopping this worker");
+        }
+        if let Ok(mut fatal) = self.fatal.lock() {
+            fatal.get_or_insert(error);
+        }
+        self.stop_sender.send_replace(true);
+    }
+
     /// The long-poll wait of a claim: never longer than the idle limit, so an idle worker
     /// notices it in time.
     fn claim_wait(&self) -> Duration {
@@ -322,13 +420,18 @@ impl SlotContext {
     }
 }
 
-async fn slot_loop(context: Arc<SlotContext>, slot: usize) -> WorkerSummary {
+/// One slot: claims jobs of `backend` (a CPU slot CPU jobs, a GPU slot GPU jobs) one at a time
+/// until the worker stops.
+async fn slot_loop(context: Arc<SlotContext>, slot: usize, backend: BackendKind) -> WorkerSummary {
     let mut summary = WorkerSummary::default();
     let mut backoff = Backoff::new(context.config.max_backoff);
     while !*context.stop.borrow() {
         let mut stop = context.stop.clone();
+        let claim = context
+            .client
+            .claim(context.worker_id, context.claim_wait(), Some(backend));
         let claimed = tokio::select! {
-            claimed = context.client.claim(context.worker_id, context.claim_wait()) => claimed,
+            claimed = claim => claimed,
             _ = stop.wait_for(|s| *s) => break,
         };
         match claimed {
@@ -450,6 +553,8 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
             let simulation = tokio::task::spawn_blocking(move || {
                 simulate(spec, engine, seed, threads, stores, &signals)
             });
+            let on_gpu = job.backend == BackendKind::Gpu;
+            let gpu_failed = gpu_failure(context.gpu_failed.subscribe());
             tokio::select! {
                 joined = simulation => joined,
                 seconds = stalled(&watched, context.config.stall_timeout) => {
@@ -457,10 +562,27 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
                     heartbeat.abort();
                     return give_up_stalled(context, &job, seconds).await;
                 }
+                // Another run on this worker's GPU stalled, or the device was lost: this run's
+                // thread may never come back; its job goes to another worker now.
+                reason = gpu_failed, if on_gpu => {
+                    stopper.abort();
+                    heartbeat.abort();
+                    return report_gpu_failure(context, &job, &reason).await;
+                }
             }
         }
         Err(error) => Ok(Err(error)),
     };
+    // A GPU run that failed on a lost device: the device's fault, not the run's.
+    if job.backend == BackendKind::Gpu && !matches!(outcome, Ok(Ok(_))) {
+        if let Some(reason) = context.config.gpu.as_ref().and_then(|gpu| gpu.lost()) {
+            stopper.abort();
+            heartbeat.abort();
+            let failure = format!("the device was lost: {reason}");
+            context.gpu_failed(failure.clone(), WorkerError::GpuFailed { reason });
+            return report_gpu_failure(context, &job, &failure).await;
+        }
+    }
     // A test aid (`table_lookup`) may ask to hold the job as if it were simulating.
     if let Ok(Ok(outcome)) = &outcome {
         let hold =
@@ -539,6 +661,21 @@ async fn run_job(context: &SlotContext, job: ClaimResponse) -> JobEnd {
     }
 }
 
+/// Completes with the reason once the worker's GPU failed ([`SlotContext::gpu_failed`]); never
+/// while it works.
+async fn gpu_failure(mut failed: watch::Receiver<Option<String>>) -> String {
+    // The channel's value is read locked while the reference lives: copied out at once.
+    let reason = failed
+        .wait_for(Option::is_some)
+        .await
+        .ok()
+        .map(|reason| reason.clone().unwrap_or_default());
+    match reason {
+        Some(reason) => reason,
+        None => std::future::pending().await,
+    }
+}
+
 /// Completes (with the seconds since the last one) once the run has reported no progress for
 /// `limit`; never without a limit.
 async fn stalled(signals: &JobSignals, limit: Option<Duration>) -> f64 {
@@ -561,20 +698,44 @@ async fn stalled(signals: &JobSignals, limit: Option<Duration>) -> f64 {
 
 /// A run stuck for `seconds`: its job goes back to the server as this worker's failure (it
 /// runs again elsewhere) and the worker stops with [`WorkerError::Stalled`]; the stuck thread
-/// is left behind (it cannot be ended from inside: its process must end).
+/// is left behind (it cannot be ended from inside: its process must end). A GPU run's stall
+/// is its device's: the other GPU jobs in flight fail too.
 async fn give_up_stalled(context: &SlotContext, job: &ClaimResponse, seconds: f64) -> JobEnd {
     tracing::error!(job = %job.job_id, run = %job.run_id, seconds,
         "the simulation reported no progress; handing its job back and stopping this worker");
-    if let Ok(mut fatal) = context.fatal.lock() {
-        fatal.get_or_insert(WorkerError::Stalled {
-            job: job.job_id,
-            seconds,
-        });
+    let stalled = WorkerError::Stalled {
+        job: job.job_id,
+        seconds,
+    };
+    if job.backend == BackendKind::Gpu {
+        context.gpu_failed(
+            format!(
+                "run {} on it reported no progress for {seconds:.0} s (a hung device)",
+                job.run_id
+            ),
+            stalled,
+        );
+    } else {
+        if let Ok(mut fatal) = context.fatal.lock() {
+            fatal.get_or_insert(stalled);
+        }
+        context.stop_sender.send_replace(true);
     }
-    context.stop_sender.send_replace(true);
     let error = format!(
         "the simulation reported no progress for {seconds:.0} s (a thread hung in a GPU \
          driver, or an endless loop) on worker {}; it runs again elsewhere",
+        context.worker_id
+    );
+    report_failure(context, job, error, Rerun::Retry).await
+}
+
+/// A GPU job whose device failed (`reason`): reported failed as this worker's (it runs again
+/// elsewhere); the worker is stopping.
+async fn report_gpu_failure(context: &SlotContext, job: &ClaimResponse, reason: &str) -> JobEnd {
+    let adapter = context.config.gpu.as_ref().map_or("", |gpu| gpu.name());
+    let error = format!(
+        "the GPU ({adapter}) of worker {} failed: {reason}; the worker stopped and the run \
+         goes to another",
         context.worker_id
     );
     report_failure(context, job, error, Rerun::Retry).await
@@ -877,6 +1038,92 @@ mod tests {
             simulate(spec, cpu, 0, 1, Stores::default(), &signals),
             Err(ExperimentError::Cancelled)
         ));
+    }
+
+    /// The GPU tests' adapter (lavapipe in CI), or none with a message where none can be
+    /// opened (`REPOSE_REQUIRE_GPU=1`, which `.ci/run` sets where lavapipe is installed,
+    /// makes that a failure).
+    fn test_gpu() -> Option<Arc<Gpu>> {
+        match Gpu::open() {
+            Ok(gpu) => Some(Arc::new(gpu)),
+            Err(e) if std::env::var("REPOSE_REQUIRE_GPU").is_ok_and(|v| v == "1") => {
+                panic!("REPOSE_REQUIRE_GPU=1 but {e}")
+            }
+            Err(e) => {
+                eprintln!("SKIPPED: {e}");
+                None
+            }
+        }
+    }
+
+    /// Several GPU runs at once on one adapter, as a worker's GPU slots run them (its
+    /// `simulate`, each on its own thread), give the lone run's results to the bit.
+    #[test]
+    fn gpu_runs_sharing_one_adapter_give_the_results_of_a_lone_run() {
+        let Some(gpu) = test_gpu() else { return };
+        // The small funnel of the GPU tests at half its mass: about 280 grains of 4 mm, a few
+        // seconds on lavapipe.
+        let overrides = serde_json::json!({
+            "particle": {"radius": 0.002},
+            "total_mass": 0.025,
+            "mass_rate": 0.25,
+            "funnel": {"outlet_diameter": 0.04},
+            "base": {"size": 0.15},
+            "materials": {"soil": {"youngs_modulus": 1e6}},
+            "soil_soil": {"rolling_friction": 0.3, "static_friction": 0.442},
+            "settle": {"min_time": 0.1, "check_interval": 0.05, "creep_window_s": 0.15},
+            "time_cap": 1.5
+        });
+        let spec = repose_experiments::catalog::prepare_spec("aor", Some("fast"), &overrides)
+            .and_then(|spec| ExperimentSpec::parse_job("aor", &spec))
+            .unwrap();
+        let runner = Runner {
+            backend: BackendKind::Gpu,
+            gpu: Some(gpu.clone()),
+        };
+        let run = || {
+            let signals = JobSignals::default();
+            let mut outcome = simulate(
+                spec.clone(),
+                runner.clone(),
+                7,
+                1,
+                Stores::default(),
+                &signals,
+            )
+            .unwrap();
+            // The one figure a run's own clock gives.
+            outcome.details["wall_time_s"] = serde_json::Value::Null;
+            outcome
+        };
+        let started = Instant::now();
+        let alone = run();
+        let lone_s = started.elapsed().as_secs_f64();
+        let started = Instant::now();
+        let together: Vec<Outcome> = std::thread::scope(|s| {
+            let runs: Vec<_> = (0..2).map(|_| s.spawn(run)).collect();
+            runs.into_iter().map(|r| r.join().unwrap()).collect()
+        });
+        println!(
+            "one run alone {lone_s:.1} s, two at once {:.1} s; angle {:?}",
+            started.elapsed().as_secs_f64(),
+            alone.metrics.get("angle_deg")
+        );
+        assert!(
+            alone.metrics.contains_key("angle_deg"),
+            "{:?}",
+            alone.metrics
+        );
+        assert!(
+            alone.engine_version.contains("+gpu:"),
+            "{}",
+            alone.engine_version
+        );
+        for (k, outcome) in together.iter().enumerate() {
+            assert_eq!(outcome.metrics, alone.metrics, "run {k} of 2");
+            assert_eq!(outcome.details, alone.details, "run {k} of 2");
+        }
+        assert_eq!(gpu.in_flight(), (0, 0), "every world gave its memory back");
     }
 
     #[test]

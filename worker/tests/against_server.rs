@@ -302,3 +302,154 @@ async fn a_formula_batch_runs_to_its_analysis_and_a_bad_expression_is_a_422_nami
     assert!((coefficient("b") + 1.0).abs() < 0.05, "{analysis}");
     server.stop().await;
 }
+
+/// The GPU tests' adapter (lavapipe in CI), opened for this test alone, or none with a message
+/// where none can be opened (`REPOSE_REQUIRE_GPU=1`, which `.ci/run` sets where lavapipe is
+/// installed, makes that a failure).
+fn test_gpu() -> Option<std::sync::Arc<repose_experiments::backend::Gpu>> {
+    match repose_experiments::backend::Gpu::open() {
+        Ok(gpu) => Some(std::sync::Arc::new(gpu)),
+        Err(e) if std::env::var("REPOSE_REQUIRE_GPU").is_ok_and(|v| v == "1") => {
+            panic!("REPOSE_REQUIRE_GPU=1 but {e}")
+        }
+        Err(e) => {
+            eprintln!("SKIPPED: {e}");
+            None
+        }
+    }
+}
+
+/// A `gpu` batch of `runs` small funnels (the GPU tests' funnel at half its mass: about 280
+/// grains of 4 mm, a few seconds each on lavapipe).
+fn small_gpu_funnels(runs: usize) -> serde_json::Value {
+    let points: Vec<_> = (0..runs).map(|k| json!([0.4 + 0.02 * k as f64])).collect();
+    json!({
+        "name": "small GPU funnels",
+        "experiment": {"kind": "aor", "backend": "gpu", "preset": "fast", "spec": {
+            "particle": {"radius": 0.002},
+            "total_mass": 0.025,
+            "mass_rate": 0.25,
+            "funnel": {"outlet_diameter": 0.04},
+            "base": {"size": 0.15},
+            "materials": {"soil": {"youngs_modulus": 1e6}},
+            "soil_soil": {"rolling_friction": 0.3},
+            "settle": {"min_time": 0.1, "check_interval": 0.05, "creep_window_s": 0.15},
+            "time_cap": 1.5
+        }},
+        "factors": [{"name": "mu_s", "path": "soil_soil.static_friction", "low": 0.4, "high": 0.5}],
+        "design": {"type": "explicit", "points": points},
+        "response": "angle_deg",
+        "model": "none",
+        "seed": 3
+    })
+}
+
+/// A worker with one CPU slot and two GPU slots (issue 49): the GPU slots run a `gpu` batch's
+/// two jobs at once on the one adapter while the CPU slot takes the CPU jobs, one at a time;
+/// `/v1/workers` shows its GPU. Then its GPU is lost in the middle of two runs: both jobs are
+/// reported failed, naming the lost device (they go back to the queue for another worker),
+/// and the worker stops with `GpuFailed` for its service manager to start it again.
+#[test]
+fn gpu_slots_run_gpu_jobs_at_once_beside_a_cpu_slot_and_a_lost_gpu_fails_them() {
+    let Some(gpu) = test_gpu() else { return };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    runtime.block_on(async move {
+        let dir = tempfile::tempdir().unwrap();
+        let db = dir.path().join("repose.sqlite");
+        let token = create_token(&db, "workers", TokenRole::Worker)
+            .await
+            .unwrap();
+        let user = create_token(&db, "someone", TokenRole::User).await.unwrap();
+        let server = Server::start(&db, "127.0.0.1:0", ReleaseVersion::current()).await;
+        let url = server.url.clone();
+        submit_replay(&url, &user, 2, 1.0).await;
+        let (status, body) = post_batch(&url, &user, &small_gpu_funnels(2)).await;
+        assert_eq!(status, 201, "{body}");
+        let gpu_batch = body["id"].as_str().unwrap().to_owned();
+
+        let mut config = worker_config(&url, &token);
+        config.slots = 1;
+        config.gpu_slots = 2;
+        config.gpu = Some(gpu.clone());
+        let (stop, stopped) = oneshot::channel::<()>();
+        let worker = tokio::spawn(run(config, async move {
+            let _ = stopped.await;
+        }));
+
+        // Until every run is in: the most GPU runs at once, and the most CPU jobs leased at once.
+        let (mut gpu_peak, mut cpu_peak, mut view) = (0, 0, serde_json::Value::Null);
+        let deadline = std::time::Instant::now() + Duration::from_secs(120);
+        loop {
+            gpu_peak = gpu_peak.max(gpu.in_flight().0);
+            let (_, workers) = get(&url, &user, "/v1/workers").await;
+            if let Some(w) = workers.get(0) {
+                let (all, on_gpu) = (w["running_jobs"].as_u64(), w["gpu_running_jobs"].as_u64());
+                cpu_peak = cpu_peak.max(all.unwrap_or(0) - on_gpu.unwrap_or(0));
+                view = w.clone();
+            }
+            let (_, batches) = get(&url, &user, "/v1/batches").await;
+            let batches = batches.as_array().unwrap();
+            if batches.iter().all(|b| b["state"] != "active") {
+                break;
+            }
+            assert!(std::time::Instant::now() < deadline, "{batches:?}");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        assert_eq!(gpu_peak, 2, "the two GPU slots run at once");
+        assert_eq!(cpu_peak, 1, "the CPU slot runs one CPU job at a time");
+        assert_eq!(view["gpu"].as_str(), Some(gpu.name()), "{view}");
+        assert_eq!(view["gpu_slots"], 2, "{view}");
+        assert_eq!(view["gpu_memory_bytes"].as_u64(), gpu.memory(), "{view}");
+        let (_, runs) = get(&url, &user, &format!("/v1/batches/{gpu_batch}/runs")).await;
+        for run in runs.as_array().unwrap() {
+            assert_eq!(run["status"], "completed", "{run}");
+            assert_eq!(run["worker_id"], view["id"], "{run}");
+            let engine = run["engine_version"].as_str().unwrap();
+            assert!(engine.contains(&format!("+gpu:{}", gpu.name())), "{run}");
+        }
+        assert_eq!(gpu.in_flight(), (0, 0));
+
+        // The GPU is lost while both GPU slots run.
+        let (status, body) = post_batch(&url, &user, &small_gpu_funnels(2)).await;
+        assert_eq!(status, 201, "{body}");
+        let lost_batch = body["id"].as_str().unwrap().to_owned();
+        let deadline = std::time::Instant::now() + Duration::from_secs(60);
+        while gpu.in_flight().0 < 2 {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "the runs never started"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        gpu.destroy();
+        let stopped = tokio::time::timeout(Duration::from_secs(60), worker)
+            .await
+            .expect("a worker whose GPU was lost stops")
+            .unwrap();
+        match stopped {
+            Err(WorkerError::GpuFailed { reason }) => {
+                assert!(reason.contains("Destroyed"), "{reason}")
+            }
+            other => panic!("the worker of a lost GPU: {other:?}"),
+        }
+        let (_, runs) = get(&url, &user, &format!("/v1/batches/{lost_batch}/runs")).await;
+        for run in runs.as_array().unwrap() {
+            // Back in the queue (after the retry back-off) for another worker.
+            assert_eq!(run["status"], "queued", "{run}");
+            assert_eq!(run["attempts"], 1, "{run}");
+            let error = run["last_error"].as_str().unwrap_or_default();
+            assert!(
+                error.contains("device was lost") && error.contains("goes to another"),
+                "{run}"
+            );
+        }
+        drop(stop);
+        server.stop().await;
+    });
+    // A lost device's runs may leave their threads behind: the test does not wait for them.
+    runtime.shutdown_background();
+}

@@ -576,7 +576,8 @@ impl Campaign {
         };
         let request = BatchRequest {
             name,
-            experiment,
+            // A template without its own engine runs on the campaign's.
+            experiment: r.with_backend(experiment),
             factors,
             design,
             replicates,

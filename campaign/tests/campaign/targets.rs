@@ -17,7 +17,7 @@ use crate::common;
 use std::collections::BTreeMap;
 
 use common::{expand, run_lookup};
-use repose_api::{apply_factor_values, BatchRequest, FactorSpec};
+use repose_api::{apply_factor_values, BackendKind, BatchRequest, FactorSpec};
 use repose_campaign::{Campaign, CampaignRequest, Next, StageKind, StageResult, Status};
 use serde_json::{json, Value};
 
@@ -234,6 +234,46 @@ fn two_targets_are_calibrated_together_to_the_known_answer() {
     assert!(summary.targets[1].relative_error_pct < 4.0);
 }
 
+/// A campaign-level `backend` (issue 49) reaches every experiment that names none of its own,
+/// the validation's included; one that names its own (`cpu` here) keeps it.
+#[test]
+fn a_campaign_backend_reaches_every_experiment_without_its_own_and_the_validation() {
+    let mut shear = lookup(&["cohesion_kpa"]);
+    shear["backend"] = json!("cpu");
+    let (campaign, _, next) = drive(request(json!({
+        "backend": "gpu",
+        "experiments": {"aor": lookup(&["angle_deg"]), "shear": shear},
+        "validation": {
+            "experiment": lookup(&["opening_diameter_mm", "effective_depth_mm"]),
+            "measured": {"opening_diameter_mm": 63.20, "effective_depth_mm": 603.66},
+        }
+    })));
+    assert!(matches!(next, Next::Finished(_)), "{next:?}");
+    assert_eq!(
+        campaign.batches.last().unwrap().stage,
+        StageKind::Drilling,
+        "the validation ran"
+    );
+    for batch in &campaign.batches {
+        let expected = match batch.experiment.as_str() {
+            "shear" => BackendKind::Cpu,
+            _ => BackendKind::Gpu,
+        };
+        assert_eq!(
+            batch.request.experiment.backend,
+            Some(expected),
+            "{}",
+            batch.request.name
+        );
+    }
+    // Stored as asked: the request keeps telling the experiment's own `cpu` from none.
+    assert_eq!(campaign.request.experiments["aor"].backend, None);
+    assert_eq!(
+        campaign.request.experiments["shear"].backend,
+        Some(BackendKind::Cpu)
+    );
+}
+
 #[test]
 fn a_validation_experiment_runs_at_the_optimum_and_is_compared_with_its_measurements() {
     let (campaign, _, next) = drive(request(json!({
@@ -357,6 +397,23 @@ fn every_example_campaign_file_is_a_valid_request() {
         // `begin`: a Bayesian example with several experiments issues a batch per experiment.
         Campaign::begin(request.clone()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         files += 1;
+        if path.ends_with("paper_scale_gpu.json") {
+            // The paper-scale chain, every experiment on the GPU (issue 49).
+            assert_eq!(request.backend, Some(BackendKind::Gpu));
+            let cpu: CampaignRequest = serde_json::from_str(
+                &std::fs::read_to_string(path.with_file_name("paper_scale.json")).unwrap(),
+            )
+            .unwrap();
+            assert_eq!(cpu.backend, None);
+            assert_eq!(
+                CampaignRequest {
+                    name: cpu.name.clone(),
+                    backend: None,
+                    ..request.clone()
+                },
+                cpu
+            );
+        }
         if path.ends_with("paper_three_targets.json") {
             let labels: Vec<String> = request.targets().into_iter().map(|t| t.label).collect();
             assert_eq!(

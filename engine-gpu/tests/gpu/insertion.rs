@@ -14,11 +14,11 @@ use repose_engine::particles::ParticleSpec;
 use repose_engine::world::{Geometry, World, WorldConfig};
 use repose_engine_gpu::{Capacity, GpuError, GpuParticles, GpuWorld};
 
-const R: f64 = 1.5e-3;
+pub(crate) const R: f64 = 1.5e-3;
 const GRAIN: MaterialId = MaterialId(0);
 
 /// An empty world: a 5 cm plate (16 × 16 cells) at z = 0 in a 6 cm box open below it, gravity.
-fn empty(integrator: Integrator) -> World {
+pub(crate) fn empty(integrator: Integrator) -> World {
     let materials = common::grain_materials(0.05);
     let dt = materials.rayleigh_time_step(GRAIN, R, 0.2);
     let domain = Domain::closed(Vec3::new(-0.03, -0.03, -0.005), Vec3::new(0.03, 0.03, 0.06));
@@ -36,7 +36,7 @@ fn empty(integrator: Integrator) -> World {
     world
 }
 
-fn grain(x: f64, y: f64, z: f64, vz: f64) -> ParticleSpec {
+pub(crate) fn grain(x: f64, y: f64, z: f64, vz: f64) -> ParticleSpec {
     ParticleSpec {
         position: Vec3::new(x, y, z),
         velocity: Vec3::new(0.0, 0.0, vz),
@@ -56,7 +56,7 @@ fn resting(count: usize) -> Vec<ParticleSpec> {
 /// Two leaning stacks of three grains near x = +10 mm, a few mm above the plate, thrown down,
 /// each grain touching the one below it (overlap 1e-5 m) from the start, so the contacts must
 /// be listed at the first step: they push apart, land on the plate and topple.
-fn stacks() -> Vec<ParticleSpec> {
+pub(crate) fn stacks() -> Vec<ParticleSpec> {
     let mut specs = Vec::new();
     for (s, y) in [-0.004, 0.004].into_iter().enumerate() {
         for level in 0..3 {
@@ -69,7 +69,7 @@ fn stacks() -> Vec<ParticleSpec> {
     specs
 }
 
-fn with(world: &World, specs: &[ParticleSpec]) -> World {
+pub(crate) fn with(world: &World, specs: &[ParticleSpec]) -> World {
     let mut world = world.clone();
     for &spec in specs {
         world.add_particle(spec).unwrap();
@@ -156,7 +156,7 @@ fn grains_inserted_mid_run_fall_and_land_as_in_a_world_built_with_them() {
 
 /// Four grains that fall off the plate's edge out of the box, between grains that stay: slots
 /// 1, 2, 4 and 5 of 6.
-fn leavers_among_resting() -> Vec<ParticleSpec> {
+pub(crate) fn leavers_among_resting() -> Vec<ParticleSpec> {
     let rest = resting(2);
     let leave = |y: f64| grain(0.028, y, 0.0, -1.0);
     vec![
@@ -170,7 +170,7 @@ fn leavers_among_resting() -> Vec<ParticleSpec> {
 }
 
 /// Runs `world` until its four leavers are gone.
-fn run_until_removed(world: &mut GpuWorld, removed: u64) {
+pub(crate) fn run_until_removed(world: &mut GpuWorld, removed: u64) {
     while world.counters().unwrap().removed < removed {
         assert!(world.steps() < 5000, "the grains did not leave");
         world.run(200).unwrap();

@@ -8,4 +8,5 @@ mod insertion;
 mod jkr;
 mod moving;
 mod parity;
+mod sharing;
 mod shear;

@@ -14,7 +14,7 @@ mod window;
 pub use cpu::CpuBackend;
 pub use gpu::GpuBackend;
 /// An opened GPU (adapter, device, queue): open once with `Gpu::open()`, share among runs.
-pub use repose_engine_gpu::Gpu;
+pub use repose_engine_gpu::{Gpu, DEFAULT_ADMISSION_WAIT};
 pub use window::{PlaneStress, Window};
 
 use repose_engine::factory::ParticleSource;

@@ -29,7 +29,27 @@ impl Db {
         .bind(i64::from(limit))
         .fetch_all(&self.reader)
         .await?;
-        rows.iter().map(summary_from_row).collect()
+        let mut summaries = rows
+            .iter()
+            .map(summary_from_row)
+            .collect::<Result<Vec<_>, _>>()?;
+        self.flag_gpu_waits(&mut summaries).await?;
+        Ok(summaries)
+    }
+
+    /// Sets `gpu_wait` on the active `gpu` batches among `summaries` while no worker with a
+    /// GPU was seen lately ([`Db::gpu_wait`]).
+    async fn flag_gpu_waits(&self, summaries: &mut [BatchSummary]) -> Result<(), DbError> {
+        let waiting =
+            |s: &BatchSummary| s.backend == BackendKind::Gpu && s.state == BatchState::Active;
+        if !summaries.iter().any(waiting) {
+            return Ok(());
+        }
+        let wait = self.gpu_wait().await?;
+        for summary in summaries.iter_mut().filter(|s| waiting(s)) {
+            summary.gpu_wait = wait;
+        }
+        Ok(())
     }
 
     /// Progress of one batch, or `None` if it does not exist.
@@ -41,7 +61,9 @@ impl Db {
         else {
             return Ok(None);
         };
-        let summary = summary_from_row(&row)?;
+        let mut summary = summary_from_row(&row)?;
+        self.flag_gpu_waits(std::slice::from_mut(&mut summary))
+            .await?;
         let extra = sqlx::query(
             "SELECT b.response, b.model,
                     (SELECT AVG(wall_time_s) FROM runs WHERE batch_id = b.id
@@ -293,7 +315,7 @@ pub(super) async fn insert_batch_tx(
     .bind(owner)
     .bind(request.keep_pictures)
     .bind(serde_json::to_string(&plan.template)?)
-    .bind(request.experiment.backend.name())
+    .bind(request.experiment.backend().name())
     .execute(&mut **tx)
     .await?;
     // Multi-row inserts: a 10,000-run batch is 100 statements, not 20,000, and holds the
@@ -366,7 +388,7 @@ pub(super) async fn finish_batch_if_done(
 }
 
 pub(super) const SUMMARY_SELECT: &str =
-    "SELECT b.id, b.name, b.kind, b.state, b.created_at, b.owner,
+    "SELECT b.id, b.name, b.kind, b.state, b.created_at, b.owner, b.backend,
         COALESCE(SUM(j.state = 'queued'), 0) AS queued,
         COALESCE(SUM(j.state = 'leased'), 0) AS running,
         COALESCE(SUM(j.state = 'completed'), 0) AS completed,
@@ -397,6 +419,8 @@ pub(super) fn summary_from_row(row: &SqliteRow) -> Result<BatchSummary, DbError>
         counts,
         percent_done,
         owner: row.try_get("owner")?,
+        backend: backend_from_db(row.try_get("backend")?)?,
+        gpu_wait: None,
     })
 }
 

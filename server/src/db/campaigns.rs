@@ -17,6 +17,10 @@ pub struct CampaignRecord {
     pub updated_at_ms: i64,
     /// Batch ids in issue order.
     pub batch_ids: Vec<Uuid>,
+    /// Whether one of its batches is an active `gpu` batch.
+    pub gpu_batches_active: bool,
+    /// Set while one of its batches waits for a GPU worker and none was seen lately.
+    pub gpu_wait: Option<GpuWait>,
 }
 
 /// What a campaign advance writes.
@@ -139,7 +143,7 @@ impl Db {
 
     /// One campaign with its batch ids.
     pub async fn campaign(&self, id: Uuid) -> Result<Option<CampaignRecord>, DbError> {
-        let Some(row) = sqlx::query("SELECT * FROM campaigns WHERE id = ?")
+        let Some(row) = sqlx::query(&format!("{CAMPAIGN_SELECT} WHERE id = ?"))
             .bind(id.to_string())
             .fetch_optional(&self.reader)
             .await?
@@ -155,7 +159,10 @@ impl Db {
             .iter()
             .map(|r| parse_uuid(&r.try_get::<String, _>("id")?))
             .collect::<Result<Vec<_>, DbError>>()?;
-        Ok(Some(campaign_from_row(&row, batch_ids)?))
+        let mut record = campaign_from_row(&row, batch_ids)?;
+        self.flag_gpu_waits_of(std::slice::from_mut(&mut record))
+            .await?;
+        Ok(Some(record))
     }
 
     /// The newest campaigns (without their batch ids), newest first; only `owner`'s if given.
@@ -164,17 +171,33 @@ impl Db {
         limit: u32,
         owner: Option<&str>,
     ) -> Result<Vec<CampaignRecord>, DbError> {
-        let rows = sqlx::query(
-            "SELECT * FROM campaigns WHERE (?1 IS NULL OR owner = ?1)
-             ORDER BY created_at DESC LIMIT ?2",
-        )
+        let rows = sqlx::query(&format!(
+            "{CAMPAIGN_SELECT} WHERE (?1 IS NULL OR owner = ?1)
+             ORDER BY created_at DESC LIMIT ?2"
+        ))
         .bind(owner)
         .bind(i64::from(limit))
         .fetch_all(&self.reader)
         .await?;
-        rows.iter()
+        let mut records = rows
+            .iter()
             .map(|row| campaign_from_row(row, Vec::new()))
-            .collect()
+            .collect::<Result<Vec<_>, _>>()?;
+        self.flag_gpu_waits_of(&mut records).await?;
+        Ok(records)
+    }
+
+    /// Sets `gpu_wait` on the campaigns among `records` with an active `gpu` batch while no
+    /// worker with a GPU was seen lately ([`Db::gpu_wait`]).
+    async fn flag_gpu_waits_of(&self, records: &mut [CampaignRecord]) -> Result<(), DbError> {
+        if !records.iter().any(|r| r.gpu_batches_active) {
+            return Ok(());
+        }
+        let wait = self.gpu_wait().await?;
+        for record in records.iter_mut().filter(|r| r.gpu_batches_active) {
+            record.gpu_wait = wait;
+        }
+        Ok(())
     }
 
     /// Ids of the campaigns still running (resumed at start-up).
@@ -203,6 +226,12 @@ pub(super) async fn link_batch(
     Ok(())
 }
 
+/// A campaign's row, and whether it has an active `gpu` batch.
+const CAMPAIGN_SELECT: &str = "SELECT *, EXISTS (SELECT 1 FROM batches b
+        WHERE b.campaign_id = campaigns.id AND b.state = 'active' AND b.backend = 'gpu')
+        AS gpu_batches_active
+    FROM campaigns";
+
 pub(super) fn campaign_from_row(
     row: &SqliteRow,
     batch_ids: Vec<Uuid>,
@@ -218,5 +247,7 @@ pub(super) fn campaign_from_row(
         created_at_ms: row.try_get("created_at")?,
         updated_at_ms: row.try_get("updated_at")?,
         batch_ids,
+        gpu_batches_active: row.try_get("gpu_batches_active")?,
+        gpu_wait: None,
     })
 }

@@ -2,6 +2,10 @@
 
 use super::*;
 
+/// How recently a worker with a GPU must have been seen (registered, claimed or heartbeated)
+/// for the `gpu` batches not to be flagged as waiting for one ([`GpuWait`]).
+pub const GPU_WORKER_WINDOW: Duration = Duration::from_secs(600);
+
 /// Whether and how a failed job runs again.
 #[derive(Debug, Clone, Copy)]
 pub enum Rerun {
@@ -91,12 +95,13 @@ impl Db {
         let result = async {
             let changed = sqlx::query(
                 "INSERT INTO workers (id, host, threads, version, registered_at, last_seen_at,
-                                      token, gpu)
-                 VALUES (?, ?, ?, ?, ?, ?, ?, ?)
+                                      token, gpu, gpu_memory_bytes, gpu_slots)
+                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                  ON CONFLICT (id) DO UPDATE SET host = excluded.host,
                      threads = excluded.threads, version = excluded.version,
                      last_seen_at = excluded.last_seen_at, token = excluded.token,
-                     gpu = excluded.gpu
+                     gpu = excluded.gpu, gpu_memory_bytes = excluded.gpu_memory_bytes,
+                     gpu_slots = excluded.gpu_slots
                  WHERE workers.token IS NULL OR workers.token = excluded.token",
             )
             .bind(worker.instance_id.to_string())
@@ -107,6 +112,12 @@ impl Db {
             .bind(now)
             .bind(token)
             .bind(worker.gpu.as_deref())
+            .bind(
+                worker
+                    .gpu_memory_bytes
+                    .map(|b| i64::try_from(b).unwrap_or(i64::MAX)),
+            )
+            .bind(worker.gpu_slots.map(i64::from))
             .execute(&mut *tx)
             .await?
             .rows_affected();
@@ -122,14 +133,17 @@ impl Db {
         tx.finish(result).await
     }
 
-    /// Leases the oldest available job to `worker_id`, first returning expired leases to the
-    /// queue (or marking their jobs dead after `max_attempts`). `Ok(None)`: nothing to do.
-    /// Also reports the batches that the expiries finished. A worker whose registered
-    /// version `release` does not accept is refused (field `version`).
+    /// Leases the oldest available job to `worker_id` that its slot can run (`backend`: only
+    /// jobs of batches on that engine; none: any the worker can run), first returning expired
+    /// leases to the queue (or marking their jobs dead after `max_attempts`). `Ok(None)`:
+    /// nothing to do. Also reports the batches that the expiries finished. A worker whose
+    /// registered version `release` does not accept is refused (field `version`), and a GPU
+    /// slot's claim from a worker that registered no GPU (field `backend`).
     pub async fn claim(
         &self,
         worker_id: Uuid,
         caller: &str,
+        backend: Option<BackendKind>,
         lease: Duration,
         max_attempts: u32,
         release: repose_api::ReleaseVersion,
@@ -147,16 +161,16 @@ impl Db {
                 })
                 .unwrap_or(false);
             if !seen_recently {
-                let version: Option<String> = sqlx::query_scalar(
+                let registered: Option<(String, bool)> = sqlx::query_as(
                     "UPDATE workers SET last_seen_at = ? WHERE id = ? AND token = ?
-                     RETURNING version",
+                     RETURNING version, gpu IS NOT NULL",
                 )
                 .bind(now)
                 .bind(worker_id.to_string())
                 .bind(caller)
                 .fetch_optional(&mut *tx)
                 .await?;
-                let Some(version) = version else {
+                let Some((version, has_gpu)) = registered else {
                     return Err(DbError::invalid(
                         "worker_id",
                         format!(
@@ -169,6 +183,15 @@ impl Db {
                 // at its first claim here, as a registration would be.
                 repose_api::check_worker_version(release, &version)
                     .map_err(|refusal| DbError::invalid("version", refusal.to_string()))?;
+                if backend == Some(BackendKind::Gpu) && !has_gpu {
+                    return Err(DbError::invalid(
+                        "backend",
+                        format!(
+                            "worker {worker_id} registered no GPU adapter, so it cannot claim \
+                             gpu jobs; register with `gpu` first"
+                        ),
+                    ));
+                }
                 if let Ok(mut seen) = self.seen_workers.lock() {
                     seen.insert(worker_id, (caller.to_owned(), now));
                 }
@@ -192,10 +215,11 @@ impl Db {
 
             let token = Uuid::new_v4();
             let expires_at = now + duration_ms(lease);
-            // One round trip: record the lease for the oldest available job this worker can
-            // run (a `gpu` batch's only if it registered a GPU adapter), then lease that job
-            // (found through its new lease) and return what the worker needs. Plain `?`
-            // placeholders, bound in order across both statements.
+            // One round trip: record the lease for the oldest available job this slot can
+            // run (a `gpu` batch's only if the worker registered a GPU adapter; of one engine
+            // only when the slot names it), then lease that job (found through its new lease)
+            // and return what the worker needs. Plain `?` placeholders, bound in order across
+            // both statements.
             let claimed = sqlx::query(
                 "INSERT INTO leases (token, job_id, worker_id, attempt, granted_at)
                  SELECT ?, id, ?, attempts + 1, ? FROM jobs
@@ -203,6 +227,8 @@ impl Db {
                                AND ((SELECT gpu FROM workers WHERE workers.id = ?) IS NOT NULL
                                     OR (SELECT backend FROM batches
                                         WHERE batches.id = jobs.batch_id) = 'cpu')
+                               AND (? IS NULL OR (SELECT backend FROM batches
+                                                  WHERE batches.id = jobs.batch_id) = ?)
                              ORDER BY available_at, rowid LIMIT 1);
                  UPDATE jobs SET state = 'leased', attempts = attempts + 1, lease_token = ?,
                                  lease_expires_at = ?, worker_id = ?, progress = 0, updated_at = ?
@@ -222,6 +248,8 @@ impl Db {
             .bind(now)
             .bind(now)
             .bind(worker_id.to_string())
+            .bind(backend.map(BackendKind::name))
+            .bind(backend.map(BackendKind::name))
             .bind(token.to_string())
             .bind(expires_at)
             .bind(worker_id.to_string())
@@ -327,9 +355,13 @@ impl Db {
     /// Registered workers, most recently seen first, with the number of leases each holds.
     pub async fn list_workers(&self, limit: u32) -> Result<Vec<WorkerView>, DbError> {
         let rows = sqlx::query(
-            "SELECT w.id, w.host, w.threads, w.version, w.gpu, w.registered_at, w.last_seen_at,
+            "SELECT w.id, w.host, w.threads, w.version, w.gpu, w.gpu_memory_bytes, w.gpu_slots,
+                    w.registered_at, w.last_seen_at,
                     (SELECT COUNT(*) FROM jobs j
-                     WHERE j.worker_id = w.id AND j.state = 'leased') AS running_jobs
+                     WHERE j.worker_id = w.id AND j.state = 'leased') AS running_jobs,
+                    (SELECT COUNT(*) FROM jobs j JOIN batches b ON b.id = j.batch_id
+                     WHERE j.worker_id = w.id AND j.state = 'leased' AND b.backend = 'gpu')
+                        AS gpu_running_jobs
              FROM workers w ORDER BY w.last_seen_at DESC, w.rowid DESC LIMIT ?",
         )
         .bind(i64::from(limit))
@@ -343,12 +375,33 @@ impl Db {
                     threads: row.try_get::<i64, _>("threads")? as u32,
                     version: row.try_get("version")?,
                     gpu: row.try_get("gpu")?,
+                    gpu_memory_bytes: row
+                        .try_get::<Option<i64>, _>("gpu_memory_bytes")?
+                        .map(|b| b.max(0) as u64),
+                    gpu_slots: row
+                        .try_get::<Option<i64>, _>("gpu_slots")?
+                        .map(|s| s.clamp(0, i64::from(u32::MAX)) as u32),
                     registered_at_ms: row.try_get("registered_at")?,
                     last_seen_at_ms: row.try_get("last_seen_at")?,
                     running_jobs: row.try_get::<i64, _>("running_jobs")? as u64,
+                    gpu_running_jobs: row.try_get::<i64, _>("gpu_running_jobs")? as u64,
                 })
             })
             .collect()
+    }
+
+    /// `Some` while no worker that registered a GPU adapter was seen within
+    /// [`GPU_WORKER_WINDOW`]: a `gpu` batch's jobs then wait for one.
+    pub async fn gpu_wait(&self) -> Result<Option<GpuWait>, DbError> {
+        let seen: bool = sqlx::query_scalar(
+            "SELECT EXISTS (SELECT 1 FROM workers WHERE gpu IS NOT NULL AND last_seen_at >= ?)",
+        )
+        .bind(now_ms() - duration_ms(GPU_WORKER_WINDOW))
+        .fetch_one(&self.reader)
+        .await?;
+        Ok((!seen).then_some(GpuWait {
+            minutes: (GPU_WORKER_WINDOW.as_secs() / 60) as u32,
+        }))
     }
 
     /// Jobs, most recently changed first, optionally only those in `status` or of `batch_id`,
@@ -436,6 +489,38 @@ impl Db {
         .bind(now_ms() - duration_ms(lease))
         .fetch_one(&self.reader)
         .await?;
+        let gpu_rows = sqlx::query(
+            "SELECT w.id, w.gpu, w.gpu_memory_bytes, w.gpu_slots,
+                    (SELECT COUNT(*) FROM jobs j JOIN batches b ON b.id = j.batch_id
+                     WHERE j.worker_id = w.id AND j.state = 'leased' AND b.backend = 'gpu')
+                        AS running
+             FROM workers w WHERE w.gpu IS NOT NULL AND w.last_seen_at >= ?
+             ORDER BY w.id",
+        )
+        .bind(now_ms() - duration_ms(GPU_WORKER_WINDOW))
+        .fetch_all(&self.reader)
+        .await?;
+        let gpu_workers = gpu_rows
+            .iter()
+            .map(|row| {
+                Ok(GpuWorkerGauge {
+                    worker: row.try_get("id")?,
+                    adapter: row.try_get("gpu")?,
+                    memory_bytes: row.try_get("gpu_memory_bytes")?,
+                    slots: row.try_get("gpu_slots")?,
+                    running: row.try_get("running")?,
+                })
+            })
+            .collect::<Result<Vec<_>, DbError>>()?;
+        let batches_waiting_for_gpu = if gpu_workers.is_empty() {
+            sqlx::query_scalar(
+                "SELECT COUNT(*) FROM batches WHERE state = 'active' AND backend = 'gpu'",
+            )
+            .fetch_one(&self.reader)
+            .await?
+        } else {
+            0
+        };
         let database_bytes: i64 = sqlx::query_scalar(
             "SELECT page_count * page_size FROM pragma_page_count(), pragma_page_size()",
         )
@@ -450,6 +535,8 @@ impl Db {
             database_bytes,
             write_failures: self.writer_health.failures.load(Ordering::Relaxed),
             writes_failing: self.writer_health.failing().is_some(),
+            gpu_workers,
+            batches_waiting_for_gpu,
         })
     }
 }

@@ -17,8 +17,8 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use repose_api::{
     apply_factor_values, AnalysisView, BackendKind, BatchState, BatchStatus, BatchSummary,
-    ClaimResponse, Completion, FactorValue, JobView, ModelName, RunState, RunView, StateCounts,
-    WorkerRegistration, WorkerView,
+    ClaimResponse, Completion, FactorValue, GpuWait, JobView, ModelName, RunState, RunView,
+    StateCounts, WorkerRegistration, WorkerView,
 };
 use repose_doe::design::{DesignKind, Factor};
 use serde_json::Value;
@@ -30,7 +30,9 @@ use sqlx::sqlite::{
 use sqlx::{Row, Sqlite, SqliteConnection};
 use uuid::Uuid;
 
-use crate::types::{model_label, Gauges, PlannedBatch, ServeError, TokenInfo, TokenRole};
+use crate::types::{
+    model_label, Gauges, GpuWorkerGauge, PlannedBatch, ServeError, TokenInfo, TokenRole,
+};
 
 mod analyses;
 mod backup;
@@ -45,7 +47,7 @@ pub use backup::{backup, BackupError, BackupReport};
 use batches::*;
 pub use campaigns::{CampaignRecord, CampaignUpdate};
 pub use error::DbError;
-pub use jobs::{JobUpdate, Rerun};
+pub use jobs::{JobUpdate, Rerun, GPU_WORKER_WINDOW};
 
 /// How long a connection waits for SQLite's lock (another process, a checkpoint) before failing.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(10);

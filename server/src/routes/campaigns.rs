@@ -51,6 +51,7 @@ fn campaign_summary(record: &crate::db::CampaignRecord) -> CampaignSummary {
         batches: u64::try_from(record.batches_issued).unwrap_or(0),
         created_at_ms: record.created_at_ms,
         updated_at_ms: record.updated_at_ms,
+        gpu_wait: record.gpu_wait,
     }
 }
 

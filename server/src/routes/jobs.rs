@@ -118,6 +118,7 @@ pub(super) async fn claim_job(
             .claim(
                 request.worker_id,
                 &caller.name,
+                request.backend,
                 state.config.lease,
                 state.config.max_attempts,
                 state.config.release,

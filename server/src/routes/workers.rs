@@ -34,6 +34,24 @@ pub(super) async fn register_worker(
             ));
         }
         submit::check_name_length("gpu", gpu)?;
+        if registration.gpu_slots == Some(0) {
+            return Err(AppError::invalid(
+                "gpu_slots",
+                "must be at least 1 for a worker with a GPU",
+            ));
+        }
+    } else {
+        for (field, given) in [
+            ("gpu_slots", registration.gpu_slots.is_some()),
+            ("gpu_memory_bytes", registration.gpu_memory_bytes.is_some()),
+        ] {
+            if given {
+                return Err(AppError::invalid(
+                    field,
+                    "only a worker with a GPU (`gpu`) reports it",
+                ));
+            }
+        }
     }
     repose_api::check_worker_version(state.config.release, &registration.version)
         .map_err(|refusal| AppError::invalid("version", refusal.to_string()))?;
@@ -42,7 +60,8 @@ pub(super) async fn register_worker(
         .register_worker(&registration, &caller.name)
         .await?;
     tracing::info!(worker = %registration.instance_id, host = %registration.host,
-        gpu = registration.gpu.as_deref().unwrap_or("none"), "worker registered");
+        gpu = registration.gpu.as_deref().unwrap_or("none"),
+        gpu_slots = registration.gpu_slots.unwrap_or(0), "worker registered");
     if released > 0 {
         tracing::info!(worker = %registration.instance_id, jobs = released,
             "jobs the worker held before it restarted went back to the queue");

@@ -112,7 +112,7 @@ pub fn lookup_template(rows: &[Row]) -> repose_api::ExperimentTemplate {
         .collect();
     repose_api::ExperimentTemplate {
         kind: "table_lookup".into(),
-        backend: repose_api::BackendKind::Cpu,
+        backend: None,
         preset: None,
         spec: json!({"values": values, "rows": rows, "tolerance": 1e-6}),
     }

@@ -199,6 +199,8 @@ impl TestServer {
             threads: 1,
             version: repose_api::version::RELEASE.into(),
             gpu: gpu.map(str::to_owned),
+            gpu_memory_bytes: gpu.map(|_| 8 << 30),
+            gpu_slots: gpu.map(|_| 2),
         };
         let (status, body) = self
             .post(
@@ -212,10 +214,20 @@ impl TestServer {
 
     /// One claim; `None` on 204.
     pub async fn claim(&self, worker: Uuid, wait_s: f64) -> Option<ClaimResponse> {
+        self.claim_on(worker, wait_s, None).await
+    }
+
+    /// One claim of a slot of `backend` (none: any job the worker can run); `None` on 204.
+    pub async fn claim_on(
+        &self,
+        worker: Uuid,
+        wait_s: f64,
+        backend: Option<&str>,
+    ) -> Option<ClaimResponse> {
         let (status, body) = self
             .post(
                 "/v1/jobs/claim",
-                &json!({"worker_id": worker, "wait_s": wait_s}),
+                &json!({"worker_id": worker, "wait_s": wait_s, "backend": backend}),
             )
             .await;
         match status {
