@@ -123,7 +123,7 @@ pub fn envelope(circles: &[(f64, f64)]) -> Result<Envelope, EnvelopeError> {
     }
     let sxy: f64 = circles.iter().map(|c| (c.0 - mean3) * (c.1 - mean1)).sum();
     let slope = sxy / sxx;
-    if !(slope > 1.0) {
+    if slope.is_nan() || slope <= 1.0 {
         return Err(EnvelopeError::NoFriction(slope));
     }
     let intercept = mean1 - slope * mean3;
@@ -158,7 +158,7 @@ pub struct Stiffness {
 /// at a positive strain before failure).
 pub fn stiffness(series: &[TriaxialSample], failure: &Failure) -> Option<Stiffness> {
     let half = 0.5 * failure.deviator_kpa;
-    if !(half > 0.0) {
+    if half.is_nan() || half <= 0.0 {
         return None;
     }
     let end = failure.index.min(series.len().checked_sub(1)?);
@@ -172,7 +172,7 @@ pub fn stiffness(series: &[TriaxialSample], failure: &Failure) -> Option<Stiffne
     };
     let ea = a.axial_strain + t * (b.axial_strain - a.axial_strain);
     let ev = a.volumetric_strain + t * (b.volumetric_strain - a.volumetric_strain);
-    if !(ea > 0.0) {
+    if ea.is_nan() || ea <= 0.0 {
         return None;
     }
     Some(Stiffness {

@@ -183,7 +183,7 @@ impl TriaxialResult {
 pub struct TriaxialRun {
     pub result: TriaxialResult,
     /// The last stage's grains at the end of loading: centre and radius.
-    pub sheared: Vec<([f64; 3], f64)>,
+    pub sheared: Vec<Grain>,
 }
 
 impl TriaxialRun {
@@ -811,6 +811,14 @@ fn load_stages(
     Ok(TriaxialRun { result, sheared })
 }
 
+/// A stage's progress callback: the stage's fraction done, its phase, the backend (for the
+/// grain count).
+type StageProgress<'a> =
+    dyn FnMut(f64, &'static str, &mut dyn Backend) -> Result<(), OnBedError> + 'a;
+
+/// A grain's centre and radius, m.
+pub type Grain = ([f64; 3], f64);
+
 /// A stage's progress: consolidation is the first 30 % (against its time cap), loading the
 /// rest (against the axial strain).
 const CONSOLIDATION_SHARE: f64 = 0.3;
@@ -822,8 +830,8 @@ fn run_stage(
     bed: &SettledBed,
     sigma_kpa: f64,
     solid: f64,
-    progress: &mut dyn FnMut(f64, &'static str, &mut dyn Backend) -> Result<(), OnBedError>,
-) -> Result<(TriaxialStage, Vec<([f64; 3], f64)>), OnBedError> {
+    progress: &mut StageProgress<'_>,
+) -> Result<(TriaxialStage, Vec<Grain>), OnBedError> {
     let spec = on.spec;
     let (lo, hi) = extent(bed);
     let size = hi - lo;
