@@ -5,6 +5,7 @@ mod analyze;
 mod aor_cmd;
 mod backend;
 mod backup_cmd;
+mod bed_cmd;
 mod bench_cmd;
 mod client;
 mod design_cmd;

@@ -10,75 +10,26 @@
 //! same sample parameters. `--backend gpu` settles the sample and shears it on the GPU engine
 //! (its sample key ends in `-gpu`).
 
-use crate::backend::Backend;
-use crate::local_run::{run_on_bed_and_write, RunFiles};
+use crate::bed_cmd::BedArgs;
+use crate::local_run::RunFiles;
 use anyhow::Result;
 use clap::Args;
-use repose_experiments::shear::{ShearOn, ShearResult, ShearRun, ShearSpec};
-use repose_experiments::Spec;
-use std::path::PathBuf;
+use repose_experiments::shear::{ShearResult, ShearRun, ShearSpec};
 
 #[derive(Debug, Args)]
 pub struct ShearArgs {
-    /// Experiment spec (JSON, a `ShearSpec`); fields not given take the preset's values.
-    #[arg(long)]
-    pub spec: Option<PathBuf>,
     /// Start from a preset: `default` (100 mm box, ~3 000 grains of 6 mm, four normal stresses)
     /// or `fast` (50 mm box, ~1 000 grains of 4.4 mm, three normal stresses, tens of seconds).
+    /// Paths for `--set` include `normal_stresses_kpa=[5,10,20]`.
     #[arg(long, default_value = "default")]
     pub preset: String,
-    /// Change one field by its dotted path, e.g. `soil_soil.static_friction=0.5`,
-    /// `normal_stresses_kpa=[5,10,20]`,
-    /// `soil_soil.cohesion={"model":"linear","energy_density":1e5}` (repeatable, in order).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
-    /// Directory for result.json, shear_curves.svg, mohr_coulomb.svg, shear_curves.csv
-    /// (created if missing).
-    #[arg(long, required_unless_present = "print_spec")]
-    pub out: Option<PathBuf>,
-    /// Directory of settled samples (`<key>.json`): reused when present, stored when built.
-    #[arg(long)]
-    pub bed_cache: Option<PathBuf>,
-    /// Worker threads (default: all cores). Results are identical for any count.
-    #[arg(long, env = "REPOSE_THREADS")]
-    pub threads: Option<usize>,
-    /// The engine: `cpu` (the reference) or `gpu` (the GPU engine; the sample is settled there
-    /// too). Without a GPU adapter `gpu` is an error, never a fall-back to the CPU.
-    #[arg(long, value_enum, default_value = "cpu")]
-    pub backend: Backend,
-    /// Print the effective spec (after --preset/--spec/--set) as JSON and exit.
-    #[arg(long)]
-    pub print_spec: bool,
-    /// No progress bar.
-    #[arg(long)]
-    pub quiet: bool,
-}
-
-fn effective_spec(args: &ShearArgs) -> Result<ShearSpec> {
-    let spec: ShearSpec =
-        crate::local_run::spec_from_args(&args.preset, args.spec.as_deref(), &args.set)?;
-    spec.validate()?;
-    Ok(spec)
+    #[command(flatten)]
+    pub bed: BedArgs,
 }
 
 pub fn run(args: &ShearArgs) -> Result<()> {
-    let spec = effective_spec(args)?;
-    if args.print_spec {
-        println!("{}", spec.to_json());
-        return Ok(());
-    }
-    let out = args.out.as_ref().expect("clap requires --out");
-    let gpu = crate::backend::open_gpu(args.backend)?;
-    run_on_bed_and_write(
-        &ShearOn {
-            spec: &spec,
-            engine: crate::backend::engine(gpu.as_ref()),
-        },
-        out,
-        args.bed_cache.as_deref(),
-        args.threads,
-        args.quiet,
-    )
+    let spec: ShearSpec = args.bed.spec(&args.preset)?;
+    crate::bed_cmd::run(&args.bed, spec)
 }
 
 impl RunFiles for ShearRun {

@@ -107,19 +107,25 @@ fn the_same_seed_gives_the_same_result_to_the_bit() {
 }
 
 /// φ rises with the soil-soil static friction and with the rolling friction; c rises with the
-/// cohesion energy density (and a cohesionless soil's intercept is small against it).
+/// cohesion energy density. Four `ci` runs around one with little rolling friction (μr 0.02):
+/// static friction 0.1 instead of 0.442, rolling friction 0.5, linear cohesion of 5e4 J/m³.
 #[test]
 fn friction_raises_phi_and_cohesion_raises_c() {
-    let smooth = run("μs 0.1", &ci(&[("soil_soil.static_friction", "0.1")]));
-    let rough = run("μs 0.6", &ci(&[("soil_soil.static_friction", "0.6")]));
+    let base = run("μr 0.02", &ci(&[("soil_soil.rolling_friction", "0.02")]));
+    let smooth = run(
+        "μs 0.1, μr 0.02",
+        &ci(&[
+            ("soil_soil.rolling_friction", "0.02"),
+            ("soil_soil.static_friction", "0.1"),
+        ]),
+    );
     assert!(
-        phi(&rough) > phi(&smooth) + 5.0,
+        phi(&base) > phi(&smooth) + 5.0,
         "{} against {}",
-        phi(&rough),
+        phi(&base),
         phi(&smooth)
     );
     let rolling = run("μr 0.5", &ci(&[("soil_soil.rolling_friction", "0.5")]));
-    let base = run("μr 0.02", &ci(&[("soil_soil.rolling_friction", "0.02")]));
     assert!(
         phi(&rolling) > phi(&base) + 2.0,
         "{} against {}",
@@ -127,11 +133,14 @@ fn friction_raises_phi_and_cohesion_raises_c() {
         phi(&base)
     );
     let sticky = run(
-        "cohesion 5e4",
-        &ci(&[(
-            "soil_soil.cohesion",
-            r#"{"model":"linear","energy_density":5e4}"#,
-        )]),
+        "μr 0.02, cohesion 5e4",
+        &ci(&[
+            ("soil_soil.rolling_friction", "0.02"),
+            (
+                "soil_soil.cohesion",
+                r#"{"model":"linear","energy_density":5e4}"#,
+            ),
+        ]),
     );
     let c_base = base.cohesion_kpa.unwrap();
     let c_sticky = sticky.cohesion_kpa.unwrap();
