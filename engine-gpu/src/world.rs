@@ -20,7 +20,15 @@ use crate::scene::{
 };
 use crate::{Gpu, GpuError};
 
-const SHADER: &str = include_str!("shaders/dem.wgsl");
+/// The shader: its files joined in order (each names what it holds).
+const SHADER: &str = concat!(
+    include_str!("shaders/common.wgsl"),
+    include_str!("shaders/contact.wgsl"),
+    include_str!("shaders/neighbours.wgsl"),
+    include_str!("shaders/walls.wgsl"),
+    include_str!("shaders/forces.wgsl"),
+    include_str!("shaders/integrate.wgsl"),
+);
 
 /// Steps encoded into one command buffer.
 const STEPS_PER_SUBMIT: u64 = 25;
@@ -436,7 +444,7 @@ impl GpuWorld {
         let start_params = params_group(&start);
 
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("dem.wgsl"),
+            label: Some("dem"),
             source: wgpu::ShaderSource::Wgsl(SHADER.into()),
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
