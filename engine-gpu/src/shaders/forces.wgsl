@@ -1,4 +1,4 @@
-// ---- forces ----
+// ---- forces: a grain's pairs, then its triangle contacts; the moving geometries' loads ----
 
 // The slab's share of the contact of i and j (i < j) whose force on i is `force_on_i`: the
 // force on the upper grain (the higher centre) from the lower one times the length of the
@@ -24,6 +24,183 @@ fn slab_share(i: u32, j: u32, force_on_i: vec3<f32>) -> vec3<f32> {
     return select(force_on_i, -force_on_i, branch.z >= 0.0) * inside;
 }
 
+// What a grain sums at a force evaluation, in this order: gravity, its pairs in list order,
+// then its triangle contacts in the order they were kept.
+struct Sums {
+    force: vec3<f32>,
+    torque: vec3<f32>,
+    // CDT's rolling moment (the brake `kick_spin` applies)
+    moment: f32,
+    // particle-particle contacts
+    touching: f32,
+    // the grain's share of the sampled slab's stress sums
+    sampled: vec3<f32>,
+}
+
+// Adds grain i's pair contacts to `sums`, in its list order, and writes back their springs;
+// with `sampling`, its share of the slab's sums from the pairs it leads.
+fn pair_sums(i: u32, sampling: bool, sums: Sums) -> Sums {
+    var s = sums;
+    let count = nbn[i];
+    for (var k = 0u; k < count; k++) {
+        let j = nbr[slot(i, k)];
+        if (!alive(j)) {
+            spr[slot(i, k)] = vec4<f32>(0.0);
+            if (epsd()) {
+                spr[slot(i, CAP + k)] = vec4<f32>(0.0);
+            }
+            continue;
+        }
+        // One call site for both orientations: the two particles of a pair run the same
+        // instructions on the same arguments (lower index first), so their copies of the pair's
+        // force and spring are the same bits.
+        let lower = i < j;
+        var rolling_in = vec3<f32>(0.0);
+        if (epsd()) {
+            rolling_in = spr[slot(i, CAP + k)].xyz;
+        }
+        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)], rolling_in);
+        if (o.touching) {
+            s.force += select(-o.force, o.force, lower);
+            s.torque += select(o.torque_b, o.torque_a, lower);
+            s.moment += select(o.moment_b, o.moment_a, lower);
+            s.touching += 1.0;
+            if (sampling && lower) {
+                s.sampled += slab_share(i, j, o.force);
+            }
+        }
+        spr[slot(i, k)] = vec4<f32>(o.spring, select(0.0, 1.0, o.in_contact));
+        if (epsd()) {
+            spr[slot(i, CAP + k)] = vec4<f32>(o.rolling, 0.0);
+        }
+    }
+    return s;
+}
+
+// A grain's triangle contacts at the last evaluation (`walls`), read before this one
+// overwrites them: each one's normal (w: its geometry + 1, 0 for none), spring and rolling
+// spring.
+struct WallHistory {
+    n: array<vec4<f32>, WCAP>,
+    s: array<vec4<f32>, WCAP>,
+    r: array<vec4<f32>, WCAP>,
+}
+
+fn wall_history(i: u32) -> WallHistory {
+    var old: WallHistory;
+    for (var h = 0u; h < WCAP; h++) {
+        old.n[h] = walls[slot(i, 2u * h)];
+        old.s[h] = walls[slot(i, 2u * h + 1u)];
+        if (epsd()) {
+            old.r[h] = walls[slot(i, 2u * WCAP + h)];
+        }
+    }
+    return old;
+}
+
+// The springs contact `tc` carries on: those of the previous contact with the same geometry
+// whose normal is closest (> 0.9), or none.
+struct WallSprings {
+    spring: vec3<f32>,
+    rolling: vec3<f32>,
+}
+
+fn carried_springs(old: ptr<function, WallHistory>, tc: TriContact) -> WallSprings {
+    var best = 0.9;
+    var out: WallSprings;
+    out.spring = vec3<f32>(0.0);
+    out.rolling = vec3<f32>(0.0);
+    for (var h = 0u; h < WCAP; h++) {
+        if ((*old).n[h].w == f32(tc.geometry + 1)) {
+            let dn = dot((*old).n[h].xyz, tc.normal);
+            if (dn > best) {
+                best = dn;
+                out.spring = (*old).s[h].xyz;
+                out.rolling = (*old).r[h].xyz;
+            }
+        }
+    }
+    return out;
+}
+
+// Adds grain i's triangle contact `tc`, kept as its `a`th, to `sums` and writes its history;
+// with `recording`, subtracts its force and torque from the grain's shares of a moving
+// geometry's load.
+fn wall_sums(i: u32, a: u32, tc: TriContact, springs: WallSprings, recording: bool,
+             sums: Sums) -> Sums {
+    var s = sums;
+    let vi = vel[i];
+    let mi = vi.w;
+    let ri = off[i].w;
+    let wi = omg[i].xyz;
+    let arm = tc.point;
+    let motion = wall_motion(tc, cell[i].xyz, off[i].xyz);
+    let vrel = vi.xyz + cross(wi, arm) - motion.velocity;
+    let c = pair_constants(cell[i].w, tc.material);
+    let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, springs.spring);
+    var force = h.force;
+    if (LINEAR_COHESION && c.b.z > 0.0) {
+        // Linear cohesion over the circle where the sphere cuts the wall's plane.
+        force -= tc.normal * (c.b.z * PI * tc.overlap * (2.0 * ri - tc.overlap));
+    } else if (JKR && c.c.x > 0.0) {
+        // JKR against a wall: no necking (a wall contact ends at zero overlap, as on the
+        // CPU).
+        force -= tc.normal * jkr_attraction(c, ri, tc.overlap);
+    }
+    s.force += force;
+    s.torque += cross(arm, force);
+    if (epsd()) {
+        let r = epsd_rolling(tc.normal, wi - motion.spin, h.stiffness, c.b.y, ri,
+            h.normal_force, 1.0 / omg[i].w + mi * ri * ri, springs.rolling);
+        s.torque += r.torque;
+        walls[slot(i, 2u * WCAP + a)] = vec4<f32>(r.spring, 0.0);
+    } else {
+        s.moment += c.b.y * h.normal_force * length(arm);
+    }
+    if (recording && tc.mover >= 0) {
+        let m = u32(tc.mover);
+        wload[slot(i, 2u * m)] -= vec4<f32>(force, 0.0);
+        wload[slot(i, 2u * m + 1u)] -= vec4<f32>(cross(motion.from_axis, force), 0.0);
+    }
+    walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, f32(tc.geometry + 1));
+    walls[slot(i, 2u * a + 1u)] = vec4<f32>(h.spring, 0.0);
+    return s;
+}
+
+// Adds grain i's `kept` triangle contacts (the first of `cand`) to `sums`, in order; clears
+// the history slots past them.
+fn wall_contacts(i: u32, cand: ptr<function, array<TriContact, WCAND>>, kept: u32,
+                 sums: Sums) -> Sums {
+    var s = sums;
+    var old = wall_history(i);
+    // A recorded evaluation: the grain's shares of the moving geometries' loads, summed in its
+    // own slots (only this thread writes them) and by `reduce_loads` after.
+    let recording = MOVERS && F.head.x >= 0;
+    if (recording) {
+        for (var m = 0u; m < P.movers.x; m++) {
+            wload[slot(i, 2u * m)] = vec4<f32>(0.0);
+            wload[slot(i, 2u * m + 1u)] = vec4<f32>(0.0);
+        }
+    }
+    for (var a = 0u; a < WCAP; a++) {
+        if (a >= kept) {
+            walls[slot(i, 2u * a)] = vec4<f32>(0.0);
+            walls[slot(i, 2u * a + 1u)] = vec4<f32>(0.0);
+            if (epsd()) {
+                walls[slot(i, 2u * WCAP + a)] = vec4<f32>(0.0);
+            }
+            continue;
+        }
+        let tc = (*cand)[a];
+        s = wall_sums(i, a, tc, carried_springs(&old, tc), recording, s);
+    }
+    return s;
+}
+
+// Each grain's force, torque and rolling moment by stage: gravity, its pairs, its triangle
+// contacts (the candidates of its voxel's static triangles and of each moving geometry's body
+// cell, merged); its contacts' springs and histories carried on; the moving geometries' load
+// shares and the slab's at a recorded or sampling evaluation.
 @compute @workgroup_size(WG)
 fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
@@ -45,192 +222,23 @@ fn forces(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         return;
     }
-    let vi = vel[i];
-    let mi = vi.w;
-    let ri = off[i].w;
-    var f = P.gravity.xyz * mi;
-    var tq = vec3<f32>(0.0);
-    var moment = 0.0;
-    var touching = 0.0;
-    var sampled = vec3<f32>(0.0);
-    let count = nbn[i];
-    for (var k = 0u; k < count; k++) {
-        let j = nbr[slot(i, k)];
-        if (!alive(j)) {
-            spr[slot(i, k)] = vec4<f32>(0.0);
-            if (epsd()) {
-                spr[slot(i, CAP + k)] = vec4<f32>(0.0);
-            }
-            continue;
-        }
-        // One call site for both orientations: the two particles of a pair run the same
-        // instructions on the same arguments (lower index first), so their copies of the pair's
-        // force and spring are the same bits.
-        let lower = i < j;
-        var rolling_in = vec3<f32>(0.0);
-        if (epsd()) {
-            rolling_in = spr[slot(i, CAP + k)].xyz;
-        }
-        let o = pair_contact(min(i, j), max(i, j), spr[slot(i, k)], rolling_in);
-        if (o.touching) {
-            f += select(-o.force, o.force, lower);
-            tq += select(o.torque_b, o.torque_a, lower);
-            moment += select(o.moment_b, o.moment_a, lower);
-            touching += 1.0;
-            if (sampling && lower) {
-                sampled += slab_share(i, j, o.force);
-            }
-        }
-        spr[slot(i, k)] = vec4<f32>(o.spring, select(0.0, 1.0, o.in_contact));
-        if (epsd()) {
-            spr[slot(i, CAP + k)] = vec4<f32>(o.rolling, 0.0);
-        }
-    }
-
-    // The static triangles listed in the grain's voxel, in mesh order, then each moving
-    // geometry's listed in the grain's cell of its body grid; within a geometry a point found
-    // twice (a shared edge or corner) counts once, and of contacts whose normals are within the
-    // distinct angle the deepest is kept.
+    var s: Sums;
+    s.force = P.gravity.xyz * vel[i].w;
+    s.torque = vec3<f32>(0.0);
+    s.moment = 0.0;
+    s.touching = 0.0;
+    s.sampled = vec3<f32>(0.0);
+    s = pair_sums(i, sampling, s);
     var cand: array<TriContact, WCAND>;
     var nc = 0u;
-    let ci = cell[i].xyz;
-    let oi = off[i].xyz;
-    let voxel = cell_index(ci);
-    let listed = P.ncells + 1u;
-    let last = tgrid[voxel + 1u];
-    let fixed = static_wall();
-    for (var e = tgrid[voxel]; e < last; e++) {
-        let t = tgrid[listed + e];
-        offer(&cand, &nc, t, tris[t], ci, oi, vec3<f32>(0.0), fixed, ri);
-    }
-    for (var m = 0u; MOVERS && m < P.movers.x; m++) {
-        let g = F.m[m];
-        // The grain's centre from the body origin, world frame, then body frame.
-        let from_origin = vec3<f32>(ci - g.cell.xyz) * P.csize.xyz + (oi - g.off.xyz);
-        var w: Wall;
-        w.mover = i32(m);
-        w.to_world = mat3x3<f32>(g.rot0.xyz, g.rot1.xyz, g.rot2.xyz);
-        let body = w.to_world * from_origin;
-        let u = (body - g.grid_min.xyz) / g.off.w;
-        if (any(u < vec3<f32>(0.0)) || any(u >= vec3<f32>(g.grid_dims.xyz))) {
-            continue;
-        }
-        let k = vec3<u32>(u);
-        let dims = vec3<u32>(g.grid_dims.xyz);
-        let c = u32(g.cell.w) + k.x + dims.x * (k.y + dims.y * k.z);
-        let entries = u32(g.cell.w) + dims.x * dims.y * dims.z + 1u;
-        let end = tgrid[c + 1u];
-        for (var e = tgrid[c]; e < end; e++) {
-            let t = tgrid[entries + e];
-            offer(&cand, &nc, t, tris[t], ci, oi, body, w, ri);
-        }
-    }
-    // Deepest first (ties by point), then drop those within the distinct angle of a kept one.
-    for (var a = 1u; a < nc; a++) {
-        let v = cand[a];
-        var b = a;
-        while (b > 0u && (cand[b - 1u].overlap < v.overlap
-                || (cand[b - 1u].overlap == v.overlap && cand[b - 1u].point.x > v.point.x))) {
-            cand[b] = cand[b - 1u];
-            b--;
-        }
-        cand[b] = v;
-    }
-    var kept = 0u;
-    for (var a = 0u; a < nc; a++) {
-        var distinct = true;
-        for (var b = 0u; b < kept; b++) {
-            if (cand[b].geometry == cand[a].geometry
-                && dot(cand[b].normal, cand[a].normal) > P.misc.w) {
-                distinct = false;
-            }
-        }
-        if (distinct && kept < WCAP) {
-            cand[kept] = cand[a];
-            kept++;
-        }
-    }
-    // Each contact takes the spring of the previous contact with the same geometry whose normal
-    // is closest (> 0.9).
-    var old_n: array<vec4<f32>, WCAP>;
-    var old_s: array<vec4<f32>, WCAP>;
-    var old_r: array<vec4<f32>, WCAP>;
-    for (var h = 0u; h < WCAP; h++) {
-        old_n[h] = walls[slot(i, 2u * h)];
-        old_s[h] = walls[slot(i, 2u * h + 1u)];
-        if (epsd()) {
-            old_r[h] = walls[slot(i, 2u * WCAP + h)];
-        }
-    }
-    let wi = omg[i].xyz;
-    // A recorded evaluation: the grain's shares of the moving geometries' loads, summed in its
-    // own slots (only this thread writes them) and by `reduce_loads` after.
-    let recording = MOVERS && F.head.x >= 0;
-    if (recording) {
-        for (var m = 0u; m < P.movers.x; m++) {
-            wload[slot(i, 2u * m)] = vec4<f32>(0.0);
-            wload[slot(i, 2u * m + 1u)] = vec4<f32>(0.0);
-        }
-    }
-    for (var a = 0u; a < WCAP; a++) {
-        if (a >= kept) {
-            walls[slot(i, 2u * a)] = vec4<f32>(0.0);
-            walls[slot(i, 2u * a + 1u)] = vec4<f32>(0.0);
-            if (epsd()) {
-                walls[slot(i, 2u * WCAP + a)] = vec4<f32>(0.0);
-            }
-            continue;
-        }
-        let tc = cand[a];
-        var best = 0.9;
-        var spring = vec3<f32>(0.0);
-        var rolling = vec3<f32>(0.0);
-        for (var h = 0u; h < WCAP; h++) {
-            if (old_n[h].w == f32(tc.geometry + 1)) {
-                let dn = dot(old_n[h].xyz, tc.normal);
-                if (dn > best) {
-                    best = dn;
-                    spring = old_s[h].xyz;
-                    rolling = old_r[h].xyz;
-                }
-            }
-        }
-        let arm = tc.point;
-        let motion = wall_motion(tc, ci, oi);
-        let vrel = vi.xyz + cross(wi, arm) - motion.velocity;
-        let c = pair_constants(cell[i].w, tc.material);
-        let h = hertz_mindlin(c, ri, mi, tc.overlap, tc.normal, vrel, spring);
-        var force = h.force;
-        if (LINEAR_COHESION && c.b.z > 0.0) {
-            // Linear cohesion over the circle where the sphere cuts the wall's plane.
-            force -= tc.normal * (c.b.z * PI * tc.overlap * (2.0 * ri - tc.overlap));
-        } else if (JKR && c.c.x > 0.0) {
-            // JKR against a wall: no necking (a wall contact ends at zero overlap, as on the
-            // CPU).
-            force -= tc.normal * jkr_attraction(c, ri, tc.overlap);
-        }
-        f += force;
-        tq += cross(arm, force);
-        if (epsd()) {
-            let r = epsd_rolling(tc.normal, wi - motion.spin, h.stiffness, c.b.y, ri,
-                h.normal_force, 1.0 / omg[i].w + mi * ri * ri, rolling);
-            tq += r.torque;
-            walls[slot(i, 2u * WCAP + a)] = vec4<f32>(r.spring, 0.0);
-        } else {
-            moment += c.b.y * h.normal_force * length(arm);
-        }
-        if (recording && tc.mover >= 0) {
-            let m = u32(tc.mover);
-            wload[slot(i, 2u * m)] -= vec4<f32>(force, 0.0);
-            wload[slot(i, 2u * m + 1u)] -= vec4<f32>(cross(motion.from_axis, force), 0.0);
-        }
-        walls[slot(i, 2u * a)] = vec4<f32>(tc.normal, f32(tc.geometry + 1));
-        walls[slot(i, 2u * a + 1u)] = vec4<f32>(h.spring, 0.0);
-    }
-    frc[i] = vec4<f32>(f, moment);
-    trq[i] = vec4<f32>(tq, touching);
+    offer_static(&cand, &nc, i);
+    offer_moving(&cand, &nc, i);
+    let kept = keep_distinct(&cand, nc);
+    s = wall_contacts(i, &cand, kept, s);
+    frc[i] = vec4<f32>(s.force, s.moment);
+    trq[i] = vec4<f32>(s.torque, s.touching);
     if (sampling) {
-        slab_sums[i] = vec4<f32>(sampled, 0.0);
+        slab_sums[i] = vec4<f32>(s.sampled, 0.0);
     }
 }
 

@@ -212,3 +212,79 @@ fn offer(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, 
     (*cand)[*nc] = tc;
     *nc += 1u;
 }
+
+// Offers grain i the static triangles listed in its voxel, in mesh order.
+fn offer_static(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, i: u32) {
+    let ci = cell[i].xyz;
+    let oi = off[i].xyz;
+    let ri = off[i].w;
+    let voxel = cell_index(ci);
+    let listed = P.ncells + 1u;
+    let last = tgrid[voxel + 1u];
+    let fixed = static_wall();
+    for (var e = tgrid[voxel]; e < last; e++) {
+        let t = tgrid[listed + e];
+        offer(cand, nc, t, tris[t], ci, oi, vec3<f32>(0.0), fixed, ri);
+    }
+}
+
+// Offers grain i each moving geometry's triangles listed in the grain's cell of its body grid,
+// geometry by geometry, each in mesh order.
+fn offer_moving(cand: ptr<function, array<TriContact, WCAND>>, nc: ptr<function, u32>, i: u32) {
+    let ci = cell[i].xyz;
+    let oi = off[i].xyz;
+    let ri = off[i].w;
+    for (var m = 0u; MOVERS && m < P.movers.x; m++) {
+        let g = F.m[m];
+        // The grain's centre from the body origin, world frame, then body frame.
+        let from_origin = vec3<f32>(ci - g.cell.xyz) * P.csize.xyz + (oi - g.off.xyz);
+        var w: Wall;
+        w.mover = i32(m);
+        w.to_world = mat3x3<f32>(g.rot0.xyz, g.rot1.xyz, g.rot2.xyz);
+        let body = w.to_world * from_origin;
+        let u = (body - g.grid_min.xyz) / g.off.w;
+        if (any(u < vec3<f32>(0.0)) || any(u >= vec3<f32>(g.grid_dims.xyz))) {
+            continue;
+        }
+        let k = vec3<u32>(u);
+        let dims = vec3<u32>(g.grid_dims.xyz);
+        let c = u32(g.cell.w) + k.x + dims.x * (k.y + dims.y * k.z);
+        let entries = u32(g.cell.w) + dims.x * dims.y * dims.z + 1u;
+        let end = tgrid[c + 1u];
+        for (var e = tgrid[c]; e < end; e++) {
+            let t = tgrid[entries + e];
+            offer(cand, nc, t, tris[t], ci, oi, body, w, ri);
+        }
+    }
+}
+
+// Sorts the `nc` candidates deepest first (ties by point), then keeps, in that order, those
+// not within the distinct angle of a kept one of the same geometry, at most WCAP, moved to the
+// front; returns how many.
+fn keep_distinct(cand: ptr<function, array<TriContact, WCAND>>, nc: u32) -> u32 {
+    for (var a = 1u; a < nc; a++) {
+        let v = (*cand)[a];
+        var b = a;
+        while (b > 0u && ((*cand)[b - 1u].overlap < v.overlap
+                || ((*cand)[b - 1u].overlap == v.overlap && (*cand)[b - 1u].point.x > v.point.x))) {
+            (*cand)[b] = (*cand)[b - 1u];
+            b--;
+        }
+        (*cand)[b] = v;
+    }
+    var kept = 0u;
+    for (var a = 0u; a < nc; a++) {
+        var distinct = true;
+        for (var b = 0u; b < kept; b++) {
+            if ((*cand)[b].geometry == (*cand)[a].geometry
+                && dot((*cand)[b].normal, (*cand)[a].normal) > P.misc.w) {
+                distinct = false;
+            }
+        }
+        if (distinct && kept < WCAP) {
+            (*cand)[kept] = (*cand)[a];
+            kept++;
+        }
+    }
+    return kept;
+}
