@@ -27,6 +27,7 @@
 
 mod device;
 mod error;
+mod grid;
 mod movers;
 mod profile;
 pub mod scene;
