@@ -35,6 +35,7 @@
 
 mod device;
 mod error;
+mod grid;
 mod movers;
 mod profile;
 pub mod scene;

@@ -23,7 +23,7 @@ use repose_engine::kinematics::Motion;
 use repose_engine::math::Vec3;
 use repose_engine::mesh::TriMesh;
 
-use crate::scene::{bin_triangles, Grid};
+use crate::grid::{bin_triangles, Grid};
 use crate::GpuError;
 
 /// Moving geometries a scene may hold (the shader's `MAX_MOVERS`).

@@ -108,7 +108,8 @@ fn the_same_seed_gives_the_same_result_to_the_bit() {
 
 /// φ rises with the soil-soil static friction and with the rolling friction; c rises with the
 /// cohesion energy density. Four `ci` runs around one with little rolling friction (μr 0.02):
-/// static friction 0.1 instead of 0.442, rolling friction 0.5, linear cohesion of 5e4 J/m³.
+/// static friction 0.1 instead of 0.442, rolling friction 0.5, linear cohesion of 2e5 J/m³
+/// (measured: c −0.15, 0.24, 0.52 and 3.93 kPa at 0, 5e4, 1e5 and 2e5 J/m³).
 #[test]
 fn friction_raises_phi_and_cohesion_raises_c() {
     let base = run("μr 0.02", &ci(&[("soil_soil.rolling_friction", "0.02")]));
@@ -133,12 +134,12 @@ fn friction_raises_phi_and_cohesion_raises_c() {
         phi(&base)
     );
     let sticky = run(
-        "μr 0.02, cohesion 5e4",
+        "μr 0.02, cohesion 2e5",
         &ci(&[
             ("soil_soil.rolling_friction", "0.02"),
             (
                 "soil_soil.cohesion",
-                r#"{"model":"linear","energy_density":5e4}"#,
+                r#"{"model":"linear","energy_density":2e5}"#,
             ),
         ]),
     );
