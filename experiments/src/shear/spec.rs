@@ -70,9 +70,9 @@ use repose_engine::material::{Cohesion, Interaction, MaterialSet};
 use serde::{Deserialize, Serialize};
 
 use crate::soil::{
-    check_contacts, coarse_grains, default_epsd_damping, default_rayleigh_fraction, max_radius,
-    non_negative, paper_soil_soil, paper_soil_steel, positive, BedRecipe, BedSpec, BinSpec,
-    Materials, RollingSpec, SettleSpec, SurfaceReading,
+    check_contacts, check_stress_list, coarse_grains, default_epsd_damping,
+    default_rayleigh_fraction, max_radius, non_negative, paper_soil_soil, paper_soil_steel,
+    positive, BedRecipe, BedSpec, BinSpec, Materials, RollingSpec, SettleSpec, SurfaceReading,
 };
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
@@ -397,27 +397,11 @@ impl Spec for ShearSpec {
                 ),
             ));
         }
-        if self.normal_stresses_kpa.len() < 2 {
-            return Err(invalid(
-                "normal_stresses_kpa",
-                format!(
-                    "needs at least two normal stresses for the Mohr-Coulomb fit, got {}",
-                    self.normal_stresses_kpa.len()
-                ),
-            ));
-        }
-        for (k, &s) in self.normal_stresses_kpa.iter().enumerate() {
-            positive(&format!("normal_stresses_kpa[{k}]"), s)?;
-        }
-        let mut sorted = self.normal_stresses_kpa.clone();
-        sorted.sort_by(f64::total_cmp);
-        sorted.dedup();
-        if sorted.len() < 2 {
-            return Err(invalid(
-                "normal_stresses_kpa",
-                "needs at least two different normal stresses",
-            ));
-        }
+        check_stress_list(
+            "normal_stresses_kpa",
+            &self.normal_stresses_kpa,
+            "normal stresses",
+        )?;
         positive("servo.interval", self.servo.interval)?;
         positive("servo.gain", self.servo.gain)?;
         positive("servo.max_speed", self.servo.max_speed)?;

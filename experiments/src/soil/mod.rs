@@ -21,8 +21,8 @@ pub(crate) use recipe::{
 pub use recipe::{BedError, BedInfo, BedProgress, BedRecipe, BedSpec, BinSpec, SurfaceReading};
 pub use series::running_mean;
 pub(crate) use spec::{
-    check_contacts, check_rayleigh_fraction, default_epsd_damping, default_rayleigh_fraction,
-    max_radius, non_negative, positive,
+    check_contacts, check_rayleigh_fraction, check_stress_list, default_epsd_damping,
+    default_rayleigh_fraction, max_radius, non_negative, positive,
 };
 pub use spec::{
     coarse_grains, paper_soil_soil, paper_soil_steel, MaterialProps, Materials, RollingSpec,

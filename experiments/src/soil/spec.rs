@@ -147,6 +147,34 @@ pub(crate) fn non_negative(path: &str, v: f64) -> Result<(), SpecError> {
 }
 
 /// The time step's fraction of the Rayleigh time must be in (0, 1].
+/// Checks a strength test's stresses at `path` (kPa; `what` names them in messages, e.g.
+/// "normal stresses"): at least two, each positive, at least two different, as a Mohr-Coulomb
+/// fit needs.
+pub(crate) fn check_stress_list(path: &str, values: &[f64], what: &str) -> Result<(), SpecError> {
+    if values.len() < 2 {
+        return Err(invalid(
+            path,
+            format!(
+                "needs at least two {what} for the Mohr-Coulomb fit, got {}",
+                values.len()
+            ),
+        ));
+    }
+    for (k, &v) in values.iter().enumerate() {
+        positive(&format!("{path}[{k}]"), v)?;
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted.dedup();
+    if sorted.len() < 2 {
+        return Err(invalid(
+            path,
+            format!("needs at least two different {what}"),
+        ));
+    }
+    Ok(())
+}
+
 pub(crate) fn check_rayleigh_fraction(f: f64) -> Result<(), SpecError> {
     if f > 0.0 && f <= 1.0 {
         Ok(())

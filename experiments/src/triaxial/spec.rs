@@ -42,8 +42,8 @@ use repose_engine::material::{Cohesion, Interaction, MaterialSet};
 use serde::{Deserialize, Serialize};
 
 use crate::soil::{
-    check_contacts, check_rayleigh_fraction, default_epsd_damping, max_radius, non_negative,
-    paper_soil_soil, paper_soil_steel, positive, Materials, RollingSpec,
+    check_contacts, check_rayleigh_fraction, check_stress_list, default_epsd_damping, max_radius,
+    non_negative, paper_soil_soil, paper_soil_steel, positive, Materials, RollingSpec,
 };
 pub use crate::spec_path::SpecError;
 use crate::spec_path::{invalid, unknown_preset, Spec};
@@ -310,32 +310,18 @@ impl Spec for TriaxialSpec {
             non_negative("preparation.friction", f)?;
         }
         positive("preparation.pressure_kpa", self.preparation.pressure_kpa)?;
-        if self.confining_pressures_kpa.len() < 2 {
-            return Err(invalid(
-                "confining_pressures_kpa",
-                format!(
-                    "needs at least two confining pressures for the Mohr-Coulomb envelope, got {}",
-                    self.confining_pressures_kpa.len()
-                ),
-            ));
-        }
+        check_stress_list(
+            "confining_pressures_kpa",
+            &self.confining_pressures_kpa,
+            "confining pressures",
+        )?;
         for (k, &p) in self.confining_pressures_kpa.iter().enumerate() {
-            positive(&format!("confining_pressures_kpa[{k}]"), p)?;
             if p > 1000.0 {
                 return Err(invalid(
                     &format!("confining_pressures_kpa[{k}]"),
                     format!("must be at most 1000 kPa, got {p}"),
                 ));
             }
-        }
-        let mut sorted = self.confining_pressures_kpa.clone();
-        sorted.sort_by(f64::total_cmp);
-        sorted.dedup();
-        if sorted.len() < 2 {
-            return Err(invalid(
-                "confining_pressures_kpa",
-                "needs at least two different confining pressures",
-            ));
         }
         let v = &self.servo;
         positive("servo.interval", v.interval)?;
