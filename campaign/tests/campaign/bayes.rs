@@ -802,7 +802,7 @@ fn assess_recorded(upto: usize) -> (Campaign, Vec<BatchRequest>) {
 
 /// `examples/campaigns/paper_three_targets_bayesian.json`, when it read c and φ from the direct
 /// shear test (`data/three_targets_bayesian_request.json`, that request as it was), ran 54 DEM
-/// simulations (27 settings, each by the funnel and the shear box) and spent its budget (BENCHMARKS.md, "Campaigns"); two
+/// simulations (27 settings, each by the funnel and the shear box) and spent its budget (docs/perf-log/2026-11.md); two
 /// shear runs came within a run's noise of the friction angle's band, 29.09° and 29.04° against
 /// 29.07°, both with the cohesion energy N7 at the bottom of its range. Its proposals no longer
 /// follow the recording after the start design (the surrogates now range over each experiment's
