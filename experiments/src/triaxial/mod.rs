@@ -17,6 +17,7 @@
 mod experiment;
 pub mod measure;
 mod picture;
+mod rig;
 mod run;
 mod spec;
 
